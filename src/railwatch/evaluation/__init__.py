@@ -1,0 +1,1 @@
+"""Evaluation: metrics, localisation, timing, tables, figures and the report."""
