@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= runs/benchmark
 
-.PHONY: run test lint bench-generate clean
+.PHONY: run test lint bench-generate bench-detectors clean
 
 run: $(STAMP)  ## main job: generate all eight stages and draw Figure 1
 	@mkdir -p $(OUT)
@@ -24,6 +24,9 @@ lint: $(STAMP)  ## developer loop: lint and type-check
 
 bench-generate: $(STAMP)  ## time `railwatch generate` for every stage at n = 100,000
 	$(BIN)/python benchmarks/generate_speed.py
+
+bench-detectors: $(STAMP)  ## stage-1 AUC, fit and scoring time of every detector
+	$(BIN)/python benchmarks/detectors.py
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)

@@ -4,18 +4,29 @@ place that talks to the terminal. Every failure ends in one line on stderr and a
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import click
+import numpy as np
 
 from railwatch import __version__
 from railwatch.errors import RailwatchError
 
 log = logging.getLogger("railwatch")
+
+
+def info(message: str) -> None:
+    """A status line for the user on stderr, unless --quiet."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None or (ctx.find_root().obj or {}).get("progress", True):
+        click.echo(message, err=True)
 
 STAGE_TABLE = """\b
   stage  channels  adds
@@ -53,6 +64,11 @@ def cli(ctx: click.Context, quiet: bool) -> None:
     Generate the 8-stage synthetic benchmark, draw its example figure:
       railwatch generate --stage 7 --n 3000 --seed 0 --out stage7.npz
       railwatch figure stages --out stages.png
+    Train a detector without labels, score and evaluate:
+      railwatch detectors
+      railwatch train --detector aft-attention --data train.npz --out model/
+      railwatch score --model model/ --data test.npz --out scores.npz
+      railwatch evaluate --data test.npz --scores scores.npz
 
     Run any command with --help for its options.
     """
@@ -98,9 +114,8 @@ def generate(obj: dict, stage_number: int, n: int, seed: int, out: Path, compone
                         exact_rate=not bernoulli, components=components,
                         progress=obj["progress"])
     data.save(out)
-    log.info("wrote %s: stage %d, X %s, %d anomalous (%d spikes), %.1f s",
-             out, stage_number, data.X.shape, int(data.y.sum()), int((data.kind == 1).sum()),
-             time.perf_counter() - started)
+    info(f"wrote {out}: stage {stage_number}, X {data.X.shape}, {int(data.y.sum())} anomalous "
+         f"({int((data.kind == 1).sum())} spikes), {time.perf_counter() - started:.1f} s")
 
 
 @cli.group()
@@ -123,7 +138,282 @@ def figure_stages(out: Path, seed: int) -> None:
 
     writable_file(out)
     save_figure(stages_figure(seed), out)
-    log.info("wrote %s", out)
+    info(f"wrote {out}")
+
+
+# ----------------------------------------------------------------------------- detectors
+@cli.command("detectors")
+def list_detectors() -> None:
+    """List the detectors: the registry name (what --detector takes), then what it is."""
+    from railwatch.detectors.registry import REGISTRY
+
+    width = max(map(len, REGISTRY))
+    for name, entry in REGISTRY.items():
+        click.echo(f"{name:<{width}}  {entry.description}")
+
+
+def read_overrides(config: Path | None, settings: tuple[str, ...]) -> dict[str, Any]:
+    """Config overrides from a YAML/TOML file, then ``--set key=value`` pairs (which win)."""
+    values: dict[str, Any] = {}
+    if config is not None:
+        values.update(_read_config_file(config))
+    for item in settings:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise RailwatchError(f"--set expects key=value, got {item!r} (e.g. --set epochs=5)")
+        values[key.strip()] = value.strip()
+    return values
+
+
+def _read_config_file(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        raise RailwatchError(f"no such config file: {path}")
+    text = path.read_text()
+    try:
+        if path.suffix == ".toml":
+            import tomllib
+
+            data: Any = tomllib.loads(text)
+        else:
+            import yaml
+
+            data = yaml.safe_load(text)
+    except Exception as e:  # noqa: BLE001 - any parse error is the same to the user
+        raise RailwatchError(f"cannot parse {path}: {_one_line(e)[:160]}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise RailwatchError(f"{path} must hold key: value pairs, not {type(data).__name__}")
+    return data
+
+
+def model_dir(path: Path) -> Path:
+    """Fail early if ``path`` cannot become a model directory."""
+    if path.exists() and not path.is_dir():
+        raise RailwatchError(f"--out {path} is a file: give a folder name for the model")
+    if path.is_dir() and any(path.iterdir()) and not (path / "detector.json").is_file():
+        raise RailwatchError(f"--out {path} is a non-empty folder that is not a railwatch model: "
+                             "choose a new folder")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise RailwatchError(f"cannot write {path}: folder {parent} does not exist")
+    return path
+
+
+@cli.command()
+@click.option("--detector", "name", required=True, metavar="NAME",
+              help="Registry name (see 'railwatch detectors'), e.g. aft-attention.")
+@click.option("--data", type=click.Path(path_type=Path), required=True,
+              help="Training windows: an .npz with X (n, T, C); labels in it are never used.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Model folder to write (replaced only when training succeeded).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path),
+              help="YAML or TOML file of config overrides (unknown keys are an error).")
+@click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
+              help="Override one config value, e.g. --set epochs=5 --set seed=1. Repeatable.")
+@click.pass_obj
+def train(obj: dict, name: str, data: Path, out: Path, config_file: Path | None,
+          settings: tuple[str, ...]) -> None:
+    """Train a detector, without labels, on a window file and save it.
+
+    \b
+    Example:
+      railwatch generate --stage 1 --n 2000 --seed 0 --out train.npz
+      railwatch train --detector aft-attention --data train.npz --out model/ --set epochs=10
+    """
+    from railwatch.detectors import create
+    from railwatch.windows import load_windows
+
+    overrides = {"progress": obj["progress"], **read_overrides(config_file, settings)}
+    detector = create(name, overrides)
+    model_dir(out)
+    windows = load_windows(data)
+    started = time.perf_counter()
+    detector.fit(windows.X, windows.components)
+    detector.save(out)
+    info(f"trained {name} on {len(windows.X):,} windows {windows.X.shape[1:]} in "
+         f"{time.perf_counter() - started:.1f} s; threshold {detector.threshold_:.4g}; "
+         f"saved to {out}")
+
+
+@cli.command()
+@click.option("--model", type=click.Path(path_type=Path), required=True,
+              help="Model folder written by 'railwatch train'.")
+@click.option("--data", type=click.Path(path_type=Path), required=True,
+              help="Windows to score: an .npz with X (n, T, C), same channels as in training.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Output .npz: instance (n,), point (n, T), channel (n, T, C), threshold, "
+                   "and the localised time_index/channel_index of each window.")
+def score(model: Path, data: Path, out: Path) -> None:
+    """Score windows with a trained detector (higher = more anomalous)."""
+    from railwatch.detectors import load_detector
+    from railwatch.detectors.base import localize_scores
+    from railwatch.synthetic.datasets import atomic_savez
+    from railwatch.windows import load_windows
+
+    writable_file(out)
+    detector = load_detector(model)
+    windows = load_windows(data)
+    started = time.perf_counter()
+    s = detector.score(windows.X, windows.components)
+    loc = localize_scores(s, detector.config.fs)
+    atomic_savez(out, {
+        "instance": s.instance, "point": s.point, "channel": s.channel,
+        "threshold": np.array(detector.threshold_), "time_index": loc.time_index,
+        "channel_index": loc.channel, "detector": np.array(detector.registry_name),
+    })
+    flagged = int((s.instance > detector.threshold_).sum())
+    info(f"scored {len(s.instance):,} windows in {time.perf_counter() - started:.2f} s: "
+         f"{flagged} above the fitted threshold; wrote {out}")
+
+
+@cli.command()
+@click.option("--data", type=click.Path(path_type=Path), required=True,
+              help="The labelled test set that was scored (from 'railwatch generate').")
+@click.option("--scores", "scores_path", type=click.Path(path_type=Path), required=True,
+              help="Scores written by 'railwatch score'.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False),
+              help="Also write the metrics as JSON.")
+def evaluate(data: Path, scores_path: Path, out: Path | None) -> None:
+    """Compute the metrics of the evaluation spec for scored, labelled windows.
+
+    \b
+    auc_instance  ROC-AUC of window scores (primary)     auc_point  ROC-AUC per time step
+    auc_paper7    the paper's 7-threshold AUC            ap_instance  average precision
+    f1_fitted     F1 at the threshold fitted in training  loc_time / loc_channel  localisation
+    """
+    from railwatch.detectors.base import Scores
+    from railwatch.evaluation.metrics import evaluate_scores
+    from railwatch.windows import load_windows
+
+    if out is not None:
+        writable_file(out)
+    windows = load_windows(data)
+    windows.require_labels(data)
+    arrays = load_windows_like(scores_path, ("instance", "point", "channel", "threshold"))
+    n = len(windows.X)
+    if arrays["channel"].shape != windows.X.shape:
+        raise RailwatchError(f"scores have shape {arrays['channel'].shape} but the data "
+                             f"{windows.X.shape}: were they computed on {data}?")
+    scores = Scores(instance=arrays["instance"], point=arrays["point"], channel=arrays["channel"])
+    metrics = evaluate_scores(windows.labels["y"], windows.labels["mask"],
+                              windows.labels["channel"], scores, float(arrays["threshold"]),
+                              fs=float(windows.meta.get("fs", 100.0)))
+    click.echo(f"{n:,} windows, {int(windows.labels['y'].sum()):,} anomalous")
+    for key, value in metrics.items():
+        click.echo(f"  {key:<13} {value:.4f}")
+    if out is not None:
+        from railwatch.atomic import atomic_path
+
+        with atomic_path(out) as tmp:
+            tmp.write_text(json.dumps(
+                {k: (None if math.isnan(v) else v) for k, v in metrics.items()}, indent=2))
+        info(f"wrote {out}")
+
+
+def load_windows_like(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
+    """Read named arrays from an .npz with one-line errors."""
+    if not path.is_file():
+        raise RailwatchError(f"no such file: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            missing = [k for k in keys if k not in f.files]
+            if missing:
+                raise RailwatchError(f"{path} lacks {', '.join(missing)}: is it a scores file "
+                                     "from 'railwatch score'?")
+            return {k: f[k] for k in keys}
+    except RailwatchError:
+        raise
+    except Exception as e:  # noqa: BLE001
+        raise RailwatchError(f"cannot read {path}: {_one_line(e)[:160]}") from None
+
+
+# ----------------------------------------------------------------------------- bench
+def _int_list(value: str | None, what: str) -> tuple[int, ...] | None:
+    if value is None:
+        return None
+    try:
+        return tuple(int(v) for v in value.split(",") if v.strip())
+    except ValueError:
+        raise RailwatchError(f"{what} takes numbers separated by commas, e.g. 1,3,7") from None
+
+
+@cli.command()
+@click.option("--preset", default="quick", show_default=True, metavar="NAME|FILE",
+              help="smoke (seconds, for tests), quick (all 8 stages x all detectors in ~10 min), "
+                   "standard (the paper's sizes, 3 seeds, <= 2 h), or your own YAML file.")
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False), required=True,
+              help="Output folder; finished cells are kept there, so a second run resumes.")
+@click.option("--stages", help="Only these stages, e.g. 1,3,7.")
+@click.option("--detectors", "detector_names",
+              help="Only these detectors, e.g. aft-attention,oracle.")
+@click.option("--seeds", type=click.IntRange(min=1), help="Number of seeds (overrides the preset).")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local",
+              show_default=True, help="Run cells in this process, or as Ray tasks.")
+@click.option("--address", help="Ray cluster address (with --executor ray); default: start a "
+                                 "local Ray on this machine.")
+@click.pass_obj
+def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names: str | None,
+          seeds: int | None, executor: str, address: str | None) -> None:
+    """Run the benchmark grid (stages x detectors x seeds); write the paper's tables and a report.
+
+    \b
+    Writes into OUT: results.json, table1.md/.csv (AUC per stage, with the paper's values and the
+    oracle ceiling), table2.md (inference time), localization.md, figures (PNG) and report.html.
+    Example:
+      railwatch bench --preset quick --out runs/quick
+      railwatch bench --preset smoke --out runs/smoke --stages 1,7 --detectors cnn-ae,oracle
+    """
+    from railwatch.bench.outputs import write_report
+    from railwatch.bench.presets import load_preset
+    from railwatch.bench.run import cells, run_grid
+
+    if address and executor != "ray":
+        raise RailwatchError("--address goes with --executor ray")
+    names = tuple(d.strip() for d in detector_names.split(",")) if detector_names else None
+    p = load_preset(preset, stages=_int_list(stages, "--stages"), detectors=names, seeds=seeds)
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise RailwatchError(f"cannot write {out}: folder {parent} does not exist")
+    out.mkdir(exist_ok=True)
+    total = len(cells(p))
+    started = time.perf_counter()
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc="bench", unit="cell", disable=None if obj["progress"] else True)
+    reused = 0
+
+    def on_cell(cell: Any, record: dict[str, Any] | None, done: int, n: int) -> None:
+        nonlocal reused
+        if record is None:
+            reused += 1
+        else:
+            bar.set_postfix_str(f"{cell.key}: AUC {record['auc_instance']:.3f}", refresh=False)
+        bar.update(1)
+
+    records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
+    bar.close()
+    report = write_report(out, p, records, wall_s=time.perf_counter() - started)
+    if obj["progress"]:
+        _summary(records, p.detectors)
+    info(f"{total} cells ({reused} reused from an earlier run) in "
+         f"{(time.perf_counter() - started) / 60:.1f} min")
+    click.echo(f"report: {report}")
+
+
+def _summary(records: list[dict[str, Any]], detectors: tuple[str, ...]) -> None:
+    """One screen: instance AUC per stage x detector (mean over seeds)."""
+    from railwatch.evaluation.tables import aggregate, mean_std
+
+    agg = aggregate(records, "auc_instance")
+    stages = sorted({int(r["stage"]) for r in records})
+    present = [d for d in detectors if any((s, d) in agg for s in stages)]
+    width = max(len(d) for d in present)
+    click.echo(f"\n{'auc_instance':<{width}}  " + "  ".join(f"  s{s}" for s in stages))
+    for d in present:
+        cells_ = [mean_std(agg.get((s, d), []))[0] for s in stages]
+        click.echo(f"{d:<{width}}  " + "  ".join(
+            "   – " if math.isnan(m) else f"{m:.3f}" for m in cells_))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.synthetic import STAGES, SyntheticSet, generate
@@ -111,3 +113,120 @@ def _draw_instance(ax, data: SyntheticSet, i: int) -> None:  # type: ignore[no-u
     ax.set_xlim(0, meta["duration"])
     ax.set_xlabel("time (s)")
     ax.grid(alpha=0.3)
+
+
+# ----------------------------------------------------------------------------- benchmark figures
+def auc_vs_stage_figure(
+    records: list[dict[str, Any]], detectors: list[str], metric: str = "auc_instance"
+) -> Figure:
+    """AUC against stage for every detector (mean ± std over seeds), the oracle ceiling dashed
+    black, and the paper's Table I as faint dotted lines in the same colours."""
+    from railwatch.evaluation.tables import PAPER_TABLE1, aggregate, mean_std
+
+    agg = aggregate(records, metric)
+    stages = sorted({int(r["stage"]) for r in records})
+    fig = Figure(figsize=(10, 5.5), layout="constrained")
+    ax = fig.subplots()
+    colours = dict(zip(detectors, _palette(len(detectors)), strict=True))
+    for d in detectors:
+        stats = [mean_std(agg.get((s, d), [])) for s in stages]
+        mean = np.array([m for m, _ in stats])
+        std = np.array([sd for _, sd in stats])
+        if d == "oracle":
+            ax.plot(stages, mean, "k--", lw=2.2, label="oracle (ceiling)")
+            continue
+        ax.errorbar(stages, mean, yerr=std, marker="o", ms=4, lw=1.6, capsize=3,
+                    color=colours[d], label=d)
+        if metric == "auc_instance" and d in PAPER_TABLE1:
+            ax.plot(stages, [PAPER_TABLE1[d][s - 1] for s in stages], ":", lw=1.2,
+                    color=colours[d], alpha=0.7)
+    ax.set_xticks(stages)
+    ax.set_xlabel("stage (1 baseline · 2 speed · 3 two channels · 4 noise · 5 six channels · "
+                  "6 odds · 7 HF bursts · 8 impulses)", fontsize=9)
+    ax.set_ylabel(metric)
+    ax.grid(alpha=0.3)
+    ax.set_title(f"{metric} per stage (dotted: the paper's Table I)")
+    ax.legend(fontsize=8, ncols=2, loc="lower left")
+    return fig
+
+
+def score_histograms_figure(
+    arrays: dict[tuple[int, str], dict[str, Any]], stages: list[int], detectors: list[str]
+) -> Figure:
+    """Instance-score histograms, normal vs anomalous, one panel per stage × detector."""
+    fig = Figure(figsize=(2.2 * len(stages) + 1, 1.6 * len(detectors) + 1), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(len(detectors), len(stages), squeeze=False))
+    for i, d in enumerate(detectors):
+        for j, s in enumerate(stages):
+            ax = axes[i, j]
+            a = arrays.get((s, d))
+            if a is None:
+                ax.set_axis_off()
+                continue
+            score, y = a["instance"].astype(np.float64), a["y"].astype(bool)
+            lo, hi = np.percentile(score, [0.5, 99.5])
+            bins = np.linspace(lo, hi if hi > lo else lo + 1, 40)
+            ax.hist(np.clip(score[~y], lo, hi), bins=bins, density=True, alpha=0.6,
+                    color="tab:blue", label="normal")
+            ax.hist(np.clip(score[y], lo, hi), bins=bins, density=True, alpha=0.6,
+                    color="tab:red", label="anomalous")
+            ax.set_yticks([])
+            ax.tick_params(labelsize=6)
+            if i == 0:
+                ax.set_title(f"stage {s}", fontsize=9)
+            if j == 0:
+                ax.set_ylabel(d, fontsize=8)
+    axes[0, 0].legend(fontsize=6)
+    fig.suptitle("Instance scores of the test windows: normal (blue) vs anomalous (red)")
+    return fig
+
+
+def attention_example_figure(
+    x: NDArray[Any], mask: NDArray[Any], point: NDArray[Any], attention: NDArray[Any],
+    title: str, fs: float = 100.0,
+) -> Figure:
+    """One anomalous window: the signal with the anomaly marked, the attention map of the
+    anomalous channel (averaged over layers and heads) and the attention-derived score trace.
+
+    ``x``, ``mask`` (T, C); ``point`` (T,); ``attention`` (L_q, L_k), any token grid.
+    """
+    t = np.arange(x.shape[0]) / fs
+    fig = Figure(figsize=(10, 8), layout="constrained")
+    gs = fig.add_gridspec(3, 1, height_ratios=[1, 2.2, 1])
+    ax0 = fig.add_subplot(gs[0])
+    ch = int(mask.any(axis=0).argmax()) if mask.any() else 0
+    for c in range(x.shape[1]):
+        ax0.plot(t, x[:, c] - 4 * c, lw=0.8, color="tab:red" if c == ch else "tab:blue",
+                 alpha=1 if c == ch else 0.5)
+    span = mask[:, ch]
+    if span.any():
+        ax0.axvspan(t[span].min() - 0.5 / fs, t[span].max() + 0.5 / fs, color="red", alpha=0.15)
+    ax0.set_title(title, fontsize=10)
+    ax0.set_yticks([])
+    ax0.set_xlim(0, t[-1])
+    ax1 = fig.add_subplot(gs[1])
+    n_tok = attention.shape[-1]
+    im = ax1.imshow(attention, aspect="auto", cmap="viridis", origin="upper",
+                    extent=(0, t[-1] + 1 / fs, t[-1] + 1 / fs, 0))
+    if span.any():
+        for edge in (t[span].min(), t[span].max() + 1 / fs):
+            ax1.axvline(edge, color="red", lw=1)
+    ax1.set_xlabel("key time (s)")
+    ax1.set_ylabel("query time (s)")
+    ax1.set_title(f"self-attention of the anomalous channel ({n_tok} tokens; mean over layers "
+                  "and heads)", fontsize=10)
+    fig.colorbar(im, ax=ax1, shrink=0.8)
+    ax2 = fig.add_subplot(gs[2], sharex=ax0)
+    ax2.plot(t, point, color="black", lw=1)
+    if span.any():
+        ax2.axvspan(t[span].min() - 0.5 / fs, t[span].max() + 0.5 / fs, color="red", alpha=0.15)
+    ax2.set_xlabel("time (s)")
+    ax2.set_ylabel("point score")
+    return fig
+
+
+def _palette(n: int) -> list[Any]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return [cmap(i % 10) for i in range(n)]

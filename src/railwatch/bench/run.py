@@ -1,0 +1,272 @@
+"""The benchmark grid: stages × detectors × seeds, every cell independent and resumable.
+
+A cell generates (or reads from the on-disk cache) its stage's train and test sets, fits one
+detector on the training windows without labels, scores the test windows, and returns one record
+of metrics and timings plus a few small arrays for the figures. The driver writes each finished
+cell to ``OUT/cells/`` atomically, so an interrupted run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import platform
+import time
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from railwatch.atomic import atomic_path
+from railwatch.bench.presets import Preset
+from railwatch.synthetic import SPEC_VERSION, SyntheticSet, generate
+
+log = logging.getLogger(__name__)
+
+#: Detectors whose attention maps feed the report's attention figure.
+ATTENTION_DETECTORS = ("aft-attention",)
+#: Anomalous test windows whose scores (and attention, where there is some) are kept per cell.
+N_EXAMPLES = 4
+
+
+@dataclass(frozen=True)
+class Cell:
+    stage: int
+    detector: str
+    seed: int
+
+    @property
+    def key(self) -> str:
+        return f"stage{self.stage}-{self.detector}-seed{self.seed}"
+
+
+def cells(preset: Preset) -> list[Cell]:
+    """Every cell of the grid, stage-major so that tables fill in stage order."""
+    return [Cell(s, d, k) for s in preset.stages for k in range(preset.seeds)
+            for d in preset.detectors]
+
+
+def fingerprint(preset: Preset, cell: Cell) -> str:
+    """What makes a finished cell reusable: data sizes, spec version and detector overrides."""
+    spec = {"n_train": preset.n_train, "n_test": preset.n_test, "spec": SPEC_VERSION,
+            "overrides": preset.overrides_for(cell.detector),
+            "timing_repeats": preset.timing_repeats}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:10]
+
+
+def data_seed(seed: int, split: str) -> int:
+    """Train and test sets of one benchmark seed come from different generator seeds."""
+    return 2 * seed + (split == "test")
+
+
+def dataset(cache: Path, stage: int, seed: int, n: int, split: str) -> SyntheticSet:
+    """A stage's train or test set, generated once and cached by stage, seed, size and spec."""
+    path = cache / f"stage{stage}-seed{seed}-{split}-n{n}-spec{SPEC_VERSION}.npz"
+    if path.exists():
+        try:
+            return SyntheticSet.load(path)
+        except Exception:  # noqa: BLE001 - a damaged cache file is regenerated
+            log.warning("regenerating damaged cache file %s", path)
+    data = generate(stage, n, data_seed(seed, split), components=True)
+    cache.mkdir(parents=True, exist_ok=True)
+    data.save(path)
+    return data
+
+
+def environment() -> dict[str, Any]:
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu, "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+        else os.cpu_count(), "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        "python": platform.python_version(), "host": platform.node(),
+    }
+
+
+def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Fit and evaluate one detector on one stage and seed: (record, small arrays)."""
+    from railwatch.detectors import create
+    from railwatch.evaluation.metrics import evaluate_scores, score_seconds
+
+    train = dataset(cache, cell.stage, cell.seed, preset.n_train, "train")
+    test = dataset(cache, cell.stage, cell.seed, preset.n_test, "test")
+    det = create(cell.detector, {**preset.overrides_for(cell.detector), "seed": cell.seed,
+                                 "progress": False})
+
+    def ctx(d: SyntheticSet) -> dict[str, Any] | None:
+        return {"nuisance": d.nuisance, "noise_std": d.noise_std} if det.needs else None
+
+    started = time.perf_counter()
+    det.fit(train.X, ctx(train))
+    fit_s = time.perf_counter() - started
+    scores = det.score(test.X, ctx(test))
+    metrics = evaluate_scores(test.y, test.mask, test.channel, scores, det.threshold_)
+    score_s = score_seconds(det, test.X, ctx(test), repeats=preset.timing_repeats)
+
+    examples = np.flatnonzero(test.y)[:N_EXAMPLES]
+    arrays: dict[str, Any] = {
+        "instance": scores.instance, "y": test.y, "kind": test.kind,
+        "example_index": examples, "example_point": scores.point[examples],
+        "example_channel": scores.channel[examples],
+    }
+    if cell.detector in ATTENTION_DETECTORS:
+        sub = {k: v[examples] for k, v in ctx(test).items()} if det.needs else None
+        extras = det.score(test.X[examples], sub, extras=True).extras
+        arrays.update({f"extra_{k}": v for k, v in extras.items()})
+    record = {
+        "stage": cell.stage, "detector": cell.detector, "seed": cell.seed,
+        "n_train": preset.n_train, "n_test": preset.n_test, "n_channels": int(test.X.shape[2]),
+        **metrics, "fit_s": fit_s, "score_s": score_s, "threshold": det.threshold_,
+        "config": asdict(det.config), "environment": environment(),
+        "fingerprint": fingerprint(preset, cell), "spec_version": SPEC_VERSION,
+    }
+    return record, arrays
+
+
+# ----------------------------------------------------------------------------- the store
+class ResultStore:
+    """Finished cells on disk: ``cells/<key>.json`` (record) and ``cells/<key>.npz`` (arrays)."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.dir = out / "cells"
+        self.cache = out / "cache"
+
+    def done(self, preset: Preset, cell: Cell) -> bool:
+        path = self.dir / f"{cell.key}.json"
+        if not path.exists() or not (self.dir / f"{cell.key}.npz").exists():
+            return False
+        try:
+            return bool(json.loads(path.read_text()).get("fingerprint") ==
+                        fingerprint(preset, cell))
+        except (OSError, json.JSONDecodeError):
+            return False
+
+    def write(self, cell: Cell, record: dict[str, Any], arrays: dict[str, Any]) -> None:
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.dir / f"{cell.key}.npz") as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+        with atomic_path(self.dir / f"{cell.key}.json") as tmp:  # written last: marks it done
+            tmp.write_text(json.dumps(record, indent=1, default=_json_default))
+
+    def record(self, cell: Cell) -> dict[str, Any]:
+        return dict(json.loads((self.dir / f"{cell.key}.json").read_text()))
+
+    def arrays(self, cell: Cell) -> dict[str, Any]:
+        with np.load(self.dir / f"{cell.key}.npz", allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, tuple | set):
+        return list(value)
+    raise TypeError(f"cannot store {type(value).__name__} in results")
+
+
+def _nan_to_none(value: Any) -> Any:
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
+
+# ----------------------------------------------------------------------------- executors
+CellResult = tuple[Cell, dict[str, Any], dict[str, Any]]
+
+
+def execute_local(todo: list[Cell], preset: Preset, cache: Path) -> Iterator[CellResult]:
+    """In-process, one cell after another."""
+    for cell in todo:
+        record, arrays = run_cell(cell, preset, cache)
+        yield cell, record, arrays
+
+
+def execute_ray(
+    todo: list[Cell], preset: Preset, cache: Path, address: str | None = None
+) -> Iterator[CellResult]:
+    """Every cell a Ray task (one CPU each), yielded as they finish.
+
+    ``address`` joins an existing cluster; without it a local Ray starts on this machine. Tasks
+    generate their data themselves (deterministically, cached on their node's disk under the same
+    path) and send back records and small arrays; only the driver writes results.
+    """
+    try:
+        import ray
+    except ImportError:
+        from railwatch.errors import RailwatchError
+
+        raise RailwatchError("--executor ray needs Ray: pip install 'railwatch[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False,
+                 logging_level=logging.WARNING)
+    try:
+        remote = ray.remote(num_cpus=1)(_ray_cell)
+        pending = {remote.remote(cell, preset, str(cache)): cell for cell in todo}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            cell = pending.pop(ready[0])
+            record, arrays = ray.get(ready[0])
+            yield cell, record, arrays
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _ray_cell(cell: Cell, preset: Preset, cache: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    import torch
+
+    torch.set_num_threads(1)  # one CPU per task
+    return run_cell(cell, preset, Path(cache))
+
+
+def run_grid(
+    preset: Preset,
+    out: Path,
+    executor: str = "local",
+    address: str | None = None,
+    on_cell: Callable[[Cell, dict[str, Any] | None, int, int], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Run every unfinished cell of ``preset`` into ``out``; return all records, grid order.
+
+    ``on_cell(cell, record, done, total)`` is called once per cell as it finishes (``record`` is
+    None for a cell found finished on disk).
+    """
+    store = ResultStore(out)
+    grid = cells(preset)
+    todo = [c for c in grid if not store.done(preset, c)]
+    done = len(grid) - len(todo)
+    if on_cell is not None:
+        for c in grid:
+            if c not in todo:
+                on_cell(c, None, done, len(grid))
+    results: Iterable[CellResult]
+    if executor == "local":
+        results = execute_local(todo, preset, store.cache)
+    elif executor == "ray":
+        results = execute_ray(todo, preset, store.cache, address)
+    else:
+        from railwatch.errors import RailwatchError
+
+        raise RailwatchError(f"unknown executor {executor!r}: use local or ray")
+    for cell, record, arrays in results:
+        store.write(cell, record, arrays)
+        done += 1
+        if on_cell is not None:
+            on_cell(cell, record, done, len(grid))
+    return [{k: _nan_to_none(v) for k, v in store.record(c).items()} for c in grid]

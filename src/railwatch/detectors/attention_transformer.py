@@ -1,0 +1,374 @@
+"""Attention-Focused Transformer (the paper's model): input attention -> self-attention encoder ->
+MLP decoder, trained only by reconstruction, scored primarily by how its attention deviates.
+
+Architecture (``spec/detectors.md``, "Attention-Focused Transformer"; the paper's "Proposed Model"):
+
+- **Channel-independent tokens.** Every channel's series is its own sequence through one shared
+  network (batch B·C), so every channel has its own attention maps and its own attention score:
+  the channel score (N, T, C) is native, and localisation to a channel comes from the attention
+  itself, not from a reconstruction error.
+- **Input attention.** A Conv1d embeds each sample with its neighbourhood (kernel ``kernel``); a
+  learned temporal saliency ``a_t = T · softmax_t(w · e_t)`` (mean 1 over the window)
+  re-weights the embedded samples. The weights ``a`` are an output (``extras["input_attention"]``).
+- **Patch tokens.** A strided Conv1d merges ``patch`` consecutive weighted samples into one token
+  (T = 200, patch 8 -> 25 tokens), plus sinusoidal positions. This is what makes the model fast:
+  attention costs L² = 625 per head instead of 40 000 at one token per sample.
+- **Encoder.** ``n_layers`` pre-norm blocks of multi-head self-attention (written out by hand, so
+  that every softmax row can be read) and a GELU feed-forward layer.
+- **Decoder.** An MLP per token back to its ``patch`` samples: every time step is reconstructed.
+
+Training is MSE reconstruction only, with Gaussian corruption of the input (a denoising
+objective, as in the CNN autoencoder): to undo the corruption the encoder must pool evidence from
+the other tokens of the window, so attention learns the window's structure (for a sinusoid, tokens
+at the same phase), and the decoder learns the smooth signal rather than the identity.
+
+Scores (``scoring``):
+
+- ``attention`` (the paper's contribution). Per layer, head and token, two features of the
+  attention maps: the attention *mass a token receives* (column sum of the map) and the *entropy of
+  its own row*. A one-sample spike or a 5-20-sample offset gives its token a key and query unlike
+  any the window's other tokens produce, so the rest of the window attends to it abnormally (mass)
+  and its own row becomes atypically sharp or flat (entropy). Each feature is taken relative to
+  its window's median over tokens (the window's own typical attention; frequency, amplitude and
+  noise level vary per window) and standardised by robust statistics (median, MAD) of the
+  validation split per channel, layer and head; the token score is the root mean square of these
+  z-scores over layers, heads and features. Each sample inherits its token's score.
+- ``reconstruction``: squared reconstruction error per sample and channel, divided by its window
+  median (a scale-free ratio, robust to the per-window noise level) and standardised per channel by
+  validation statistics (median, MAD).
+- ``combined``: the mean of the two standardised scores.
+
+In every mode point = max over channels, instance = max over time (the spec's defaults). Scores
+are shifted to have validation median 0 and scaled by the validation MAD, so modes are comparable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import nn
+from torch.nn import functional as F
+
+from railwatch.detectors.base import (
+    DetectorConfig,
+    FloatArray,
+    Scores,
+    TorchDetector,
+    TrainConfig,
+    reduce_instance_max,
+    reduce_point_max,
+)
+from railwatch.errors import RailwatchError
+
+SCORING_MODES = ("attention", "reconstruction", "combined")
+
+
+# ----------------------------------------------------------------------------- blocks
+class InputAttention(nn.Module):
+    """Learned temporal saliency over the embedded samples (B, d, T): weights (B, T) with mean 1."""
+
+    def __init__(self, d_embed: int) -> None:
+        super().__init__()
+        self.score = nn.Conv1d(d_embed, 1, 1, bias=False)  # w · e_t at every step
+
+    def forward(self, e: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        n_steps = e.shape[2]
+        logits = self.score(e).squeeze(1)  # (B, T): linear, so a large sample is not squashed
+        a = n_steps * F.softmax(logits, dim=-1)  # (B, T), mean 1: a neutral weight is 1
+        return e * a.unsqueeze(1), a  # (B, d, T), (B, T)
+
+
+class SelfAttention(nn.Module):
+    """Multi-head self-attention with the softmax written out, so the maps can be returned."""
+
+    def __init__(self, d_model: int, n_heads: int, shared_qk: bool = False) -> None:
+        super().__init__()
+        self.shared_qk = shared_qk
+        if d_model % n_heads:
+            raise RailwatchError(
+                f"d_model {d_model} is not divisible by n_heads {n_heads}: choose sizes that divide"
+            )
+        self.n_heads = n_heads
+        self.qkv = nn.Linear(d_model, 3 * d_model)
+        self.out = nn.Linear(d_model, d_model)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        B, L, D = x.shape
+        q, k, v = self.qkv(x).split(D, dim=2)  # each (B, L, D)
+        if self.shared_qk:
+            q = k
+        q = q.view(B, L, self.n_heads, D // self.n_heads).transpose(1, 2)  # (B, H, L, hd)
+        k = k.view(B, L, self.n_heads, D // self.n_heads).transpose(1, 2)  # (B, H, L, hd)
+        v = v.view(B, L, self.n_heads, D // self.n_heads).transpose(1, 2)  # (B, H, L, hd)
+        att = (q @ k.transpose(-2, -1)) * (1.0 / math.sqrt(k.shape[-1]))  # (B, H, L, L)
+        att = F.softmax(att, dim=-1)  # row i: where token i looks; rows sum to 1
+        y = att @ v  # (B, H, L, hd)
+        y = y.transpose(1, 2).reshape(B, L, D)  # (B, L, D)
+        return self.out(y), att
+
+
+class MLP(nn.Module):
+    def __init__(self, d_in: int, d_hidden: int, d_out: int) -> None:
+        super().__init__()
+        self.fc = nn.Linear(d_in, d_hidden)
+        self.proj = nn.Linear(d_hidden, d_out)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.proj(F.gelu(self.fc(x)))
+
+
+class Block(nn.Module):
+    """Post-norm transformer block (Vaswani et al. 2017): ln(x + attn(x)), then ln(x + mlp(x)).
+
+    Post-norm, not nanoGPT's pre-norm: the first layer's attention then sees the token embeddings
+    with their magnitudes. A pre-norm LayerNorm rescales every token to unit size before the
+    queries and keys, and a 3-unit spike in a patch becomes as small as the noise around it.
+    """
+
+    def __init__(self, d_model: int, n_heads: int, d_ff: int, shared_qk: bool = False) -> None:
+        super().__init__()
+        self.attn = SelfAttention(d_model, n_heads, shared_qk)
+        self.ln_1 = nn.LayerNorm(d_model)
+        self.mlp = MLP(d_model, d_ff, d_model)
+        self.ln_2 = nn.LayerNorm(d_model)
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        a, att = self.attn(x)
+        x = self.ln_1(x + a)
+        x = self.ln_2(x + self.mlp(x))
+        return x, att  # (B, L, D), (B, H, L, L)
+
+
+def sinusoidal_positions(n_tokens: int, d_model: int) -> torch.Tensor:
+    """The fixed sinusoidal position code (L, D) of Vaswani et al. 2017."""
+    pos = torch.arange(n_tokens, dtype=torch.float32).unsqueeze(1)  # (L, 1)
+    div = torch.exp(torch.arange(0, d_model, 2, dtype=torch.float32) * (-math.log(1e4) / d_model))
+    pe = torch.zeros(n_tokens, d_model)
+    pe[:, 0::2] = torch.sin(pos * div)
+    pe[:, 1::2] = torch.cos(pos * div[: d_model // 2])
+    return pe
+
+
+# ----------------------------------------------------------------------------- config
+@dataclass(frozen=True)
+class AFTConfig(TrainConfig):
+    scoring: str = "attention"  # "attention" (the paper's contribution), "reconstruction",
+    # or "combined"
+    d_model: int = 32
+    n_heads: int = 2
+    n_layers: int = 2
+    d_ff: int = 64  # hidden width of the feed-forward layers and of the decoder MLP
+    d_embed: int = 32  # width of the per-sample embedding that the input attention weighs
+    patch: int = 8  # samples per token
+    kernel: int = 7  # receptive field of the sample embedding (samples)
+    train_noise: float = 0.3  # std of the Gaussian corruption of training inputs (normalised units)
+    shared_qk: bool = True  # queries = keys: attention row i is a similarity of token i to the rest
+    epochs: int = 20
+    lr: float = 2e-3
+    patience: int = 4
+
+
+# ----------------------------------------------------------------------------- model
+class AttentionFocusedNet(nn.Module):
+    """(B, T, C) -> reconstruction (B, T, C), input attention (B, T, C), maps per layer.
+
+    Channels are encoded independently by the same weights: the batch is B·C sequences of one
+    channel each.
+    """
+
+    def __init__(self, n_steps: int, cfg: AFTConfig) -> None:
+        super().__init__()
+        self.patch = cfg.patch
+        self.n_tokens = -(-n_steps // cfg.patch)
+        self.embed = nn.Conv1d(1, cfg.d_embed, cfg.kernel, padding=cfg.kernel // 2)
+        self.input_attention = InputAttention(cfg.d_embed)
+        self.to_tokens = nn.Conv1d(cfg.d_embed, cfg.d_model, cfg.patch, stride=cfg.patch)
+        self.register_buffer("pos", sinusoidal_positions(self.n_tokens, cfg.d_model),
+                             persistent=False)
+        self.blocks = nn.ModuleList(
+            [Block(cfg.d_model, cfg.n_heads, cfg.d_ff, cfg.shared_qk) for _ in range(cfg.n_layers)])
+        self.decoder = MLP(cfg.d_model, cfg.d_ff, cfg.patch)
+
+    def forward(
+        self, x: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+        B, T, C = x.shape
+        s = x.permute(0, 2, 1).reshape(B * C, 1, T)  # (B·C, 1, T): one sequence per channel
+        scale = s.std(dim=2, keepdim=True) + 1e-3  # (B·C, 1, 1): per window and channel
+        s = s / scale  # amplitude drawn per window: make every sequence unit size
+        pad = self.n_tokens * self.patch - T
+        if pad:  # reflect (replicate when T is too short) up to a whole number of patches
+            s = F.pad(s, (0, pad), mode="reflect" if pad < T else "replicate")
+        e = self.embed(s)  # (B·C, d, T'): each sample with its neighbourhood
+        e, a = self.input_attention(e)  # (B·C, d, T'), (B·C, T')
+        h = self.to_tokens(e).transpose(1, 2)  # (B·C, L, D)
+        h = h + self.pos
+        maps = []
+        for block in self.blocks:
+            h, att = block(h)
+            maps.append(att)  # (B·C, H, L, L)
+        y = self.decoder(h).reshape(B * C, -1) * scale[:, 0]  # (B·C, T'): back to input units
+        y = y.reshape(B, C, -1)[:, :, :T].transpose(1, 2)  # (B, T, C)
+        a = a.reshape(B, C, -1)[:, :, :T].transpose(1, 2)  # (B, T, C)
+        return y, a, maps
+
+
+# ----------------------------------------------------------------------------- scoring
+def attention_features(maps: list[torch.Tensor], n_channels: int) -> torch.Tensor:
+    """Per-token attention features (B, C, F, L) of every layer and head.
+
+    ``maps``: one (B·C, H, L, L) softmax map per layer. Three features per layer and head, so
+    F = 3 · layers · heads, ordered (layer, head, feature):
+    the mass a token *receives* (column sum, mean 1 over tokens), the *entropy* of its own row and
+    its *self-weight* (the diagonal: how much it attends to itself rather than to the window).
+    """
+    feats = []
+    for att in maps:
+        received = att.sum(dim=-2)  # (B·C, H, L)
+        entropy = -(att * torch.log(att.clamp_min(1e-12))).sum(dim=-1)  # (B·C, H, L)
+        self_weight = att.diagonal(dim1=-2, dim2=-1)  # (B·C, H, L)
+        feats.append(torch.stack([received, entropy, self_weight], dim=2))  # (B·C, H, 3, L)
+    f = torch.cat(feats, dim=1)  # (B·C, layers·H, 3, L)
+    BC, _, _, L = f.shape
+    return f.reshape(BC // n_channels, n_channels, -1, L)  # (B, C, F, L)
+
+
+def window_relative_features(feats: NDArray[Any]) -> NDArray[Any]:
+    """Features (N, C, F, L) minus their median over the window's tokens (the typical token).
+
+    >>> f = np.array([1.0, 1.0, 1.0, 5.0]).reshape(1, 1, 1, 4)
+    >>> window_relative_features(f).ravel().tolist()
+    [0.0, 0.0, 0.0, 4.0]
+    """
+    return feats - np.median(feats, axis=-1, keepdims=True)
+
+
+def window_relative_error(sq_error: NDArray[Any]) -> NDArray[Any]:
+    """Squared error (N, T, C) divided by its median over each window's steps, per channel.
+
+    >>> e = np.array([[[1.0], [2.0], [3.0], [40.0]]])
+    >>> window_relative_error(e)[0, :, 0].tolist()
+    [0.4, 0.8, 1.2, 16.0]
+    """
+    return sq_error / np.maximum(np.median(sq_error, axis=1, keepdims=True), 1e-12)
+
+
+def robust_location_scale(values: NDArray[Any], axis: tuple[int, ...]) -> tuple[
+        NDArray[Any], NDArray[Any]]:
+    """Median and 1.4826 · MAD over ``axis`` (a std estimate that ignores the 10 % anomalies)."""
+    med = np.median(values, axis=axis, keepdims=True)
+    mad = 1.4826 * np.median(np.abs(values - med), axis=axis, keepdims=True)
+    return med, np.maximum(mad, 1e-6)
+
+
+def tokens_to_steps(token_scores: NDArray[Any], patch: int, n_steps: int) -> NDArray[Any]:
+    """Token scores (N, C, L) -> per-sample scores (N, T, C): each sample takes its token's score.
+
+    >>> tokens_to_steps(np.array([[[1.0, 2.0]]]), patch=2, n_steps=3)[0, :, 0].tolist()
+    [1.0, 1.0, 2.0]
+    """
+    return np.repeat(token_scores, patch, axis=-1)[..., :n_steps].transpose(0, 2, 1)
+
+
+class AttentionFocusedTransformer(TorchDetector):
+    Config: ClassVar[type[DetectorConfig]] = AFTConfig
+    config: AFTConfig  # type: ignore[assignment]
+
+    def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
+        super().__init__(config, **overrides)
+        if self.config.scoring not in SCORING_MODES:
+            raise RailwatchError(
+                f"unknown scoring mode {self.config.scoring!r} for the Attention-Focused "
+                f"Transformer; choose one of {', '.join(SCORING_MODES)}"
+            )
+
+    keep_maps_ = False  # set while scoring with extras=True
+
+    def build(self, n_steps: int, n_channels: int) -> nn.Module:
+        return AttentionFocusedNet(n_steps, self.config)
+
+    def loss(self, xb: torch.Tensor) -> torch.Tensor:
+        noisy = xb
+        if self.model_.training and self.config.train_noise > 0:
+            noisy = xb + self.config.train_noise * torch.randn_like(xb)
+        y, _, _ = self.model_(noisy)
+        return F.mse_loss(y, xb)
+
+    def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
+        y, a, maps = self.model_(xb)
+        out = {
+            "sq_error": (y - xb) ** 2,  # (B, T, C)
+            "log_input_attention": torch.log(a),  # (B, T, C)
+            "attention_features": attention_features(maps, xb.shape[2]),  # (B, C, F, L)
+        }
+        if self.keep_maps_:
+            B, C = xb.shape[0], xb.shape[2]
+            out["input_attention"] = a  # (B, T, C)
+            for i, att in enumerate(maps):
+                out[f"attention_{i}"] = att.reshape(B, C, *att.shape[1:])  # (B, C, H, L, L)
+        return out
+
+    def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
+        self.keep_maps_ = extras  # full maps only on request: (N, C, H, L, L) per layer is large
+        try:
+            return self.scores_from_raw(self._raw_all(X), extras)
+        finally:
+            self.keep_maps_ = False
+
+    # -- statistics ------------------------------------------------------------------------
+    @staticmethod
+    def _attention_relative(raw: dict[str, NDArray[Any]]) -> tuple[NDArray[Any], NDArray[Any]]:
+        """Attention features relative to their window's typical token: (N, C, F, L), (N, C, T)."""
+        enc = window_relative_features(raw["attention_features"])
+        inp = window_relative_features(raw["log_input_attention"].transpose(0, 2, 1))
+        return enc, inp
+
+    def _attention_z(self, raw: dict[str, NDArray[Any]]) -> tuple[NDArray[Any], NDArray[Any]]:
+        """Standardised window-relative deviations: encoder (N, C, F, L), input (N, T, C)."""
+        enc, inp = self._attention_relative(raw)
+        z_enc = (enc - self.stats_["enc_loc"]) / self.stats_["enc_scale"]
+        z_inp = (inp - self.stats_["inp_loc"]) / self.stats_["inp_scale"]
+        return z_enc, z_inp.transpose(0, 2, 1)
+
+    def _attention_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
+        """Attention deviation per sample and channel (N, T, C): the root mean square of the
+        encoder z-scores of the sample's token and the input-attention z-score of the sample."""
+        z_enc, z_inp = self._attention_z(raw)
+        n_steps = z_inp.shape[1]
+        sq_enc = tokens_to_steps((z_enc**2).sum(axis=2), self.config.patch, n_steps)  # (N, T, C)
+        return np.sqrt((sq_enc + z_inp**2) / (z_enc.shape[2] + 1))
+
+    def _reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
+        return np.log(window_relative_error(raw["sq_error"]))  # (N, T, C)
+
+    def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
+        enc, inp = self._attention_relative(raw)  # per channel and feature (layer, head, kind):
+        self.stats_["enc_loc"], self.stats_["enc_scale"] = robust_location_scale(enc, axis=(0, 3))
+        self.stats_["inp_loc"], self.stats_["inp_scale"] = robust_location_scale(inp, axis=(0, 2))
+        for name, values in (("att", self._attention_channel(raw)),
+                             ("rec", self._reconstruction_channel(raw))):
+            loc, scale = robust_location_scale(values, axis=(0, 1))  # (1, 1, C)
+            self.stats_[f"{name}_score_loc"], self.stats_[f"{name}_score_scale"] = loc, scale
+
+    def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
+        mode = self.config.scoring
+        parts = []
+        if mode in ("attention", "combined"):
+            att = self._attention_channel(raw)
+            parts.append((att - self.stats_["att_score_loc"]) / self.stats_["att_score_scale"])
+        if mode in ("reconstruction", "combined"):
+            rec = self._reconstruction_channel(raw)
+            parts.append((rec - self.stats_["rec_score_loc"]) / self.stats_["rec_score_scale"])
+        channel = (sum(parts) / len(parts)).astype(np.float32)  # (N, T, C)
+        point = reduce_point_max(channel)
+        more: dict[str, NDArray[Any]] = {}
+        if extras:
+            more = {k: v for k, v in raw.items() if k == "input_attention"
+                    or k.startswith("attention_") and k != "attention_features"}
+        return Scores(instance=reduce_instance_max(point), point=point, channel=channel,
+                      extras=more)

@@ -1,0 +1,544 @@
+"""The detector API shared by every model, and the training loop of the deep ones.
+
+Contract (``spec/detectors.md``, "Common API"), in the style of scikit-learn and PyOD:
+
+- ``fit(X) -> self`` learns everything: per-channel input normalisation, weights, score
+  statistics and ``threshold_``, the ``1 − contamination`` quantile of the training instance scores.
+  Learned state ends in ``_``; nothing happens in ``__init__`` but storing the config.
+- ``score(X) -> Scores`` with ``instance`` (N,), ``point`` (N, T) and ``channel`` (N, T, C);
+  higher is more anomalous.
+- ``localize``, ``predict``, ``save``/``load`` (weights as ``state_dict``, config as JSON, fitted
+  arrays as ``.npz``; no pickled objects).
+
+Deep detectors subclass :class:`TorchDetector`, which owns the device, seeding, batching, the
+validation split carved from the training set, early stopping and progress; each model supplies
+small hooks.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import shutil
+from abc import ABC, abstractmethod
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from tqdm.auto import tqdm
+
+from railwatch.errors import RailwatchError
+
+log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float32]
+FORMAT = "railwatch-detector"
+FORMAT_VERSION = 1
+
+
+# ----------------------------------------------------------------------------- configs
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Settings every detector has. Subclasses add their own fields with defaults."""
+
+    contamination: float = 0.10  # expected anomaly share: sets threshold_
+    seed: int = 0
+    fs: float = 100.0  # Hz, only used to report localised times in seconds
+    batch_size: int = 32  # scoring batch (and training batch for deep models)
+    progress: bool = True  # progress bar on long work (off when not a TTY)
+
+
+@dataclass(frozen=True)
+class TrainConfig(DetectorConfig):
+    """Settings of the shared training loop (Adam, mini-batches, early stopping)."""
+
+    epochs: int = 20
+    lr: float = 1e-3
+    val_fraction: float = 0.10  # validation split carved from the training set
+    patience: int = 3  # epochs without validation improvement before stopping (0: never stop)
+    device: str = "auto"  # "auto" (cuda if present, else cpu), "cpu", "cuda", "cuda:1", ...
+
+
+def config_from_dict(cls: type[DetectorConfig], values: Mapping[str, Any]) -> DetectorConfig:
+    """Build ``cls`` from overrides, rejecting unknown keys and converting/validating types."""
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise RailwatchError(
+            f"unknown config key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} for "
+            f"{cls.__name__}; valid keys: {', '.join(sorted(known))}"
+        )
+    defaults = cls()
+    converted = {k: _coerce(k, v, getattr(defaults, k)) for k, v in values.items()}
+    return replace(defaults, **converted)
+
+
+def _coerce(key: str, value: Any, default: Any) -> Any:
+    """Convert ``value`` (possibly a string from ``--set key=value``) to the default's type."""
+    kind = type(default)
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                low = value.strip().lower()
+                if low not in {"true", "false", "1", "0", "yes", "no"}:
+                    raise ValueError(value)
+                return low in {"true", "1", "yes"}
+            if not isinstance(value, bool | int):
+                raise ValueError(value)
+            return bool(value)
+        if isinstance(default, int):
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError(value)
+            return int(value)
+        if isinstance(default, float):
+            return float(value)
+        if isinstance(default, tuple):
+            items = value.split(",") if isinstance(value, str) else list(value)
+            inner = type(default[0]) if default else str
+            return tuple(inner(v) for v in items)
+        if isinstance(default, str):
+            return str(value)
+    except (TypeError, ValueError):
+        pass
+    else:
+        return value
+    raise RailwatchError(f"config key {key}: expected {kind.__name__}, got {value!r}")
+
+
+# ----------------------------------------------------------------------------- data checks
+def check_windows(
+    X: Any, *, n_channels: int | None = None, n_steps: int | None = None
+) -> FloatArray:
+    """Validate windows (N, T, C) and return them as a float32 array.
+
+    Raises a one-line :class:`RailwatchError` naming the problem: wrong rank, empty, wrong channel
+    count or window length against the fitted model, non-numeric values, NaN or inf (with the
+    first position).
+    """
+    try:
+        arr = np.asarray(X)
+    except (TypeError, ValueError) as e:
+        raise RailwatchError(f"windows must be a numeric array: {e}") from None
+    if arr.dtype.kind not in "fiub":
+        raise RailwatchError(f"windows must be numeric, got dtype {arr.dtype}")
+    if arr.ndim != 3:
+        raise RailwatchError(
+            f"expected windows of shape (n_windows, n_steps, n_channels), got shape {arr.shape}"
+        )
+    if arr.shape[0] == 0 or arr.shape[1] == 0 or arr.shape[2] == 0:
+        raise RailwatchError(f"no data: windows have shape {arr.shape}")
+    if n_channels is not None and arr.shape[2] != n_channels:
+        raise RailwatchError(
+            f"expected {_plural(n_channels, 'channel')}, got {arr.shape[2]}: the detector was "
+            f"fitted on {n_channels}-channel data"
+        )
+    if n_steps is not None and arr.shape[1] != n_steps:
+        raise RailwatchError(
+            f"expected windows of {n_steps} steps, got {arr.shape[1]}: this detector needs the "
+            "window length it was fitted on"
+        )
+    arr = arr.astype(np.float32, copy=False)
+    finite = np.isfinite(arr)
+    if not finite.all():
+        w, t, c = np.argwhere(~finite)[0]
+        what = "NaN" if np.isnan(arr[w, t, c]) else "inf"
+        raise RailwatchError(
+            f"input contains {what} at window {w}, step {t}, channel {c} "
+            f"({(~finite).sum()} non-finite values in all): clean or drop those windows"
+        )
+    return arr
+
+
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+# ----------------------------------------------------------------------------- scores
+@dataclass(frozen=True)
+class Scores:
+    """Anomaly scores of N windows; higher is more anomalous."""
+
+    instance: FloatArray  # (N,)
+    point: FloatArray  # (N, T)
+    channel: FloatArray  # (N, T, C)
+    extras: dict[str, NDArray[Any]] = field(default_factory=dict)  # e.g. attention maps
+
+
+@dataclass(frozen=True)
+class Localization:
+    """The most anomalous time step and channel of each window."""
+
+    time_index: NDArray[np.int64]  # (N,)
+    time_s: NDArray[np.float64]  # (N,) seconds from the window start
+    channel: NDArray[np.int64]  # (N,)
+
+
+def reduce_point_max(channel: FloatArray) -> FloatArray:
+    """Default point reduction: ``point = max over channels of channel`` (N, T, C) -> (N, T)."""
+    return channel.max(axis=2)
+
+
+def reduce_instance_max(point: FloatArray) -> FloatArray:
+    """Default instance reduction: ``instance = max over time of point`` (N, T) -> (N,)."""
+    return point.max(axis=1)
+
+
+def localize_scores(scores: Scores, fs: float) -> Localization:
+    """Time index = argmax of ``point``; channel = argmax of ``channel`` at that time."""
+    t = scores.point.argmax(axis=1)
+    c = scores.channel[np.arange(len(t)), t].argmax(axis=1)
+    return Localization(time_index=t.astype(np.int64), time_s=t / fs, channel=c.astype(np.int64))
+
+
+# ----------------------------------------------------------------------------- detectors
+class Detector(ABC):
+    """Base of every detector. Subclasses implement :meth:`_fit` and :meth:`_score`.
+
+    Class attributes a subclass may set:
+    ``Config`` (its config dataclass), ``normalize`` (per-channel standardisation of inputs from
+    training statistics, default on), ``fixed_length`` (scoring needs the fitted window length),
+    ``needs`` (names of side arrays, e.g. the oracle's generator components, that ``fit`` and
+    ``score`` must receive in ``context``).
+    """
+
+    Config: ClassVar[type[DetectorConfig]] = DetectorConfig
+    normalize: ClassVar[bool] = True
+    fixed_length: ClassVar[bool] = True
+    needs: ClassVar[tuple[str, ...]] = ()
+    registry_name: str = ""  # set by the registry (variants of one class differ here)
+
+    def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
+        base = config if config is not None else self.Config()
+        if not isinstance(base, self.Config):
+            raise RailwatchError(f"{type(self).__name__} takes a {self.Config.__name__}")
+        self.config = replace(base, **overrides) if overrides else base
+
+    # -- public API ----------------------------------------------------------------------
+    def fit(self, X: Any, context: Mapping[str, Any] | None = None) -> Detector:
+        """Learn from unlabelled windows ``X`` (N, T, C); returns ``self``."""
+        X = check_windows(X)
+        ctx = self._check_context(context, len(X))
+        _, self.n_steps_, self.n_channels_ = X.shape
+        self.stats_: dict[str, NDArray[Any]] = {}
+        if self.normalize:
+            mean = X.mean(axis=(0, 1), dtype=np.float64)
+            std = X.std(axis=(0, 1), dtype=np.float64)
+            self.stats_["input_mean"] = mean.astype(np.float32)
+            self.stats_["input_std"] = np.where(std > 1e-8, std, 1.0).astype(np.float32)
+        self._fit(self._normalized(X), ctx)
+        self.decision_scores_ = self._score(self._normalized(X), ctx, extras=False).instance
+        self.threshold_ = float(np.quantile(self.decision_scores_, 1.0 - self.config.contamination))
+        self.stats_["threshold"] = np.array(self.threshold_)
+        return self
+
+    def score(
+        self, X: Any, context: Mapping[str, Any] | None = None, extras: bool = False
+    ) -> Scores:
+        """Scores of windows ``X`` (N, T, C); ``extras=True`` adds large maps (attention, ...)."""
+        self._check_fitted()
+        X = check_windows(
+            X, n_channels=self.n_channels_,
+            n_steps=self.n_steps_ if self.fixed_length else None,
+        )
+        return self._score(self._normalized(X), self._check_context(context, len(X)), extras)
+
+    def localize(self, X: Any, context: Mapping[str, Any] | None = None) -> Localization:
+        """The most anomalous time step (index and seconds) and channel of each window."""
+        return localize_scores(self.score(X, context), self.config.fs)
+
+    def predict(self, X: Any, context: Mapping[str, Any] | None = None) -> NDArray[np.int8]:
+        """1 for windows whose instance score exceeds the fitted ``threshold_``, else 0."""
+        return (self.score(X, context).instance > self.threshold_).astype(np.int8)
+
+    # -- hooks ---------------------------------------------------------------------------
+    @abstractmethod
+    def _fit(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
+        """Learn weights and score statistics from normalised windows (store arrays in stats_)."""
+
+    @abstractmethod
+    def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
+        """Scores of normalised windows."""
+
+    def _state_dict(self) -> dict[str, torch.Tensor] | None:
+        """Network weights to save, if any."""
+        return None
+
+    def _load_state(self, state: dict[str, torch.Tensor] | None) -> None:
+        """Rebuild the network from saved weights (after ``stats_`` and the shapes are set)."""
+        return None
+
+    # -- persistence ---------------------------------------------------------------------
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the fitted detector into the directory ``path`` (replaced only when complete)."""
+        self._check_fitted()
+        path = Path(path)
+        if path.exists() and not (path / "detector.json").is_file() and any(path.iterdir()):
+            raise RailwatchError(
+                f"{path} exists and is not a railwatch model directory: choose a new folder"
+            )
+        if not path.parent.is_dir():
+            raise RailwatchError(f"cannot write {path}: folder {path.parent} does not exist")
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+        try:
+            header = {
+                "format": FORMAT, "format_version": FORMAT_VERSION,
+                "detector": self.registry_name or type(self).__name__,
+                "class": f"{type(self).__module__}.{type(self).__qualname__}",
+                "config": asdict(self.config), "n_steps": self.n_steps_,
+                "n_channels": self.n_channels_,
+            }
+            (tmp / "detector.json").write_text(json.dumps(header, indent=2))
+            np.savez(tmp / "stats.npz", **self.stats_)  # type: ignore[arg-type]
+            state = self._state_dict()
+            if state is not None:
+                torch.save(state, tmp / "weights.pt")
+            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            if path.exists():
+                path.rename(old)
+            tmp.rename(path)
+            shutil.rmtree(old, ignore_errors=True)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return path
+
+    @classmethod
+    def _from_saved(cls, header: dict[str, Any], path: Path) -> Detector:
+        config = config_from_dict(cls.Config, header["config"])
+        det = cls(config)
+        det.n_steps_, det.n_channels_ = int(header["n_steps"]), int(header["n_channels"])
+        with np.load(path / "stats.npz", allow_pickle=False) as f:
+            det.stats_ = {k: f[k] for k in f.files}
+        det.threshold_ = float(det.stats_["threshold"])
+        weights = path / "weights.pt"
+        state = torch.load(weights, map_location="cpu", weights_only=True) \
+            if weights.exists() else None
+        det._load_state(state)
+        return det
+
+    # -- helpers -------------------------------------------------------------------------
+    def _normalized(self, X: FloatArray) -> FloatArray:
+        if not self.normalize:
+            return X
+        return (X - self.stats_["input_mean"]) / self.stats_["input_std"]
+
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "stats_"):
+            raise RailwatchError(
+                f"{type(self).__name__} is not fitted yet: call fit(X) or load a saved model"
+            )
+
+    def _check_context(
+        self, context: Mapping[str, Any] | None, n: int
+    ) -> dict[str, FloatArray]:
+        ctx = dict(context or {})
+        missing = [k for k in self.needs if k not in ctx]
+        if missing:
+            raise RailwatchError(
+                f"{self.registry_name or type(self).__name__} needs {', '.join(missing)} "
+                "(synthetic data generated with --components)"
+            )
+        out = {}
+        for k in self.needs:
+            arr = np.asarray(ctx[k], dtype=np.float32)
+            if len(arr) != n:
+                raise RailwatchError(f"{k} has {len(arr)} windows, X has {n}")
+            out[k] = arr
+        return out
+
+
+def load_detector(path: str | os.PathLike[str]) -> Detector:
+    """Load a detector saved with :meth:`Detector.save`; any detector class, by its header."""
+    from railwatch.detectors.registry import class_for
+
+    path = Path(path)
+    if not path.is_dir():
+        raise RailwatchError(f"no model directory at {path}")
+    if not (path / "detector.json").is_file():
+        raise RailwatchError(f"{path} is not a railwatch model directory (no detector.json): "
+                             "give the folder written by 'railwatch train'")
+    try:
+        header = json.loads((path / "detector.json").read_text())
+        if header.get("format") != FORMAT:
+            raise ValueError("not a railwatch model")
+        if header.get("format_version", 0) > FORMAT_VERSION:
+            raise RailwatchError(
+                f"{path} was saved by a newer railwatch (format {header['format_version']}): "
+                "upgrade railwatch"
+            )
+        cls = class_for(header["detector"])
+        det = cls._from_saved(header, path)
+        det.registry_name = header["detector"]
+        return det
+    except RailwatchError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any failure to read a saved model is the same to the user
+        raise RailwatchError(
+            f"{path} is not a readable railwatch model directory ({type(e).__name__}: "
+            f"{' '.join(str(e).split())[:200]})"
+        ) from None
+
+
+# ----------------------------------------------------------------------------- deep models
+def resolve_device(name: str) -> torch.device:
+    """``auto`` picks CUDA when present, else the CPU; never hard-coded."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        return torch.device(name)
+    except RuntimeError as e:
+        raise RailwatchError(f"unknown device {name!r}: {e}") from None
+
+
+@contextmanager
+def seeded(seed: int) -> Iterator[None]:
+    """Seed torch inside the block without touching the caller's global random state."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        yield
+
+
+class TorchDetector(Detector):
+    """A detector backed by a PyTorch module, trained by the shared loop.
+
+    Hooks: :meth:`build` (the module for a window shape), :meth:`loss` (a training loss of a
+    batch), :meth:`raw` (per-batch outputs used for scoring), :meth:`fit_statistics` (score
+    statistics from the validation split's raw outputs) and :meth:`scores_from_raw`. A model with
+    an unusual update (the Anomaly Transformer's minimax) overrides :meth:`train_step`.
+    """
+
+    Config: ClassVar[type[DetectorConfig]] = TrainConfig
+    config: TrainConfig  # type: ignore[assignment]
+
+    # -- hooks -----------------------------------------------------------------------------
+    @abstractmethod
+    def build(self, n_steps: int, n_channels: int) -> torch.nn.Module:
+        """The network for windows of ``n_steps`` × ``n_channels``."""
+
+    @abstractmethod
+    def loss(self, xb: torch.Tensor) -> torch.Tensor:
+        """Training loss of a batch (B, T, C) on ``self.model_``."""
+
+    @abstractmethod
+    def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Per-window outputs needed for scoring (each (B, ...)), computed without gradients."""
+
+    def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
+        """Fit score statistics (into ``stats_``) from the validation split's raw outputs."""
+
+    @abstractmethod
+    def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
+        """Scores from raw outputs and the fitted statistics."""
+
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        return torch.optim.Adam(self.model_.parameters(), lr=self.config.lr)
+
+    def on_epoch_end(self, epoch: int) -> None:
+        """Called after each training epoch (e.g. a learning-rate schedule)."""
+
+    def train_step(self, xb: torch.Tensor) -> float:
+        """One optimiser step on a batch; returns the loss."""
+        self.optimizer_.zero_grad(set_to_none=True)
+        loss = self.loss(xb)
+        loss.backward()
+        self.optimizer_.step()
+        return float(loss.detach())
+
+    def validation_loss(self, xb: torch.Tensor) -> float:
+        return float(self.loss(xb))
+
+    # -- the loop --------------------------------------------------------------------------
+    def _fit(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
+        cfg = self.config
+        self.device_ = resolve_device(cfg.device)
+        rng = np.random.default_rng(cfg.seed)
+        order = rng.permutation(len(X))
+        n_val = int(round(cfg.val_fraction * len(X))) if len(X) >= 10 else 0
+        val_idx, train_idx = order[:n_val], order[n_val:]
+        train, val = X[train_idx], X[val_idx] if n_val else X[train_idx]
+        with seeded(cfg.seed):
+            self.model_ = self.build(self.n_steps_, self.n_channels_).to(self.device_)
+            self.optimizer_ = self.make_optimizer()
+            gen = torch.Generator().manual_seed(cfg.seed)
+            xt = torch.from_numpy(train)
+            best, best_state, stale = math.inf, None, 0
+            bar = tqdm(range(cfg.epochs), desc=type(self).__name__, unit="epoch",
+                       disable=None if cfg.progress else True)
+            for epoch in bar:
+                self.model_.train()
+                perm = torch.randperm(len(xt), generator=gen)
+                losses = [self.train_step(xt[perm[i:i + cfg.batch_size]].to(self.device_))
+                          for i in range(0, len(xt), cfg.batch_size)]
+                self.on_epoch_end(epoch)
+                val_loss = self._evaluate(val)
+                bar.set_postfix(loss=f"{np.mean(losses):.4f}", val=f"{val_loss:.4f}")
+                log.debug("epoch %d: train %.5f, validation %.5f", epoch + 1,
+                          np.mean(losses), val_loss)
+                if val_loss < best - 1e-6:
+                    best, stale = val_loss, 0
+                    best_state = {k: v.detach().clone() for k, v in
+                                  self.model_.state_dict().items()}
+                else:
+                    stale += 1
+                    if cfg.patience and stale >= cfg.patience:
+                        log.info("early stop after epoch %d (validation loss %.5f)", epoch + 1,
+                                 best)
+                        break
+            if best_state is not None:
+                self.model_.load_state_dict(best_state)
+        self.model_.eval()
+        del self.optimizer_
+        self.fit_statistics(self._raw_all(val))
+
+    @torch.no_grad()
+    def _evaluate(self, X: FloatArray) -> float:
+        self.model_.eval()
+        total, count = 0.0, 0
+        for i in range(0, len(X), 256):
+            xb = torch.from_numpy(X[i:i + 256]).to(self.device_)
+            total += self.validation_loss(xb) * len(xb)
+            count += len(xb)
+        return total / max(count, 1)
+
+    @torch.no_grad()
+    def _raw_all(self, X: FloatArray) -> dict[str, NDArray[Any]]:
+        """Raw outputs of all windows, in batches of ``batch_size``."""
+        self.model_.eval()
+        parts: dict[str, list[NDArray[Any]]] = {}
+        for i in range(0, len(X), self.config.batch_size):
+            xb = torch.from_numpy(np.ascontiguousarray(X[i:i + self.config.batch_size]))
+            for k, v in self.raw(xb.to(self.device_)).items():
+                parts.setdefault(k, []).append(v.float().cpu().numpy())
+        return {k: np.concatenate(v) for k, v in parts.items()}
+
+    def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
+        return self.scores_from_raw(self._raw_all(X), extras)
+
+    def _state_dict(self) -> dict[str, torch.Tensor]:
+        return {k: v.detach().cpu() for k, v in self.model_.state_dict().items()}
+
+    def _load_state(self, state: dict[str, torch.Tensor] | None) -> None:
+        if state is None:
+            raise RailwatchError("the model directory has no weights.pt")
+        self.device_ = resolve_device(self.config.device)
+        with seeded(self.config.seed):
+            self.model_ = self.build(self.n_steps_, self.n_channels_)
+        try:
+            self.model_.load_state_dict(state)
+        except RuntimeError as e:
+            raise RailwatchError(f"saved weights do not fit the model: {str(e)[:200]}") from None
+        self.model_.to(self.device_).eval()
+
+
+def standardize(values: NDArray[Any], mean: NDArray[Any], std: NDArray[Any]) -> NDArray[Any]:
+    """``(values − mean) / std`` with a floor on std, for per-channel score standardisation."""
+    return (values - mean) / np.maximum(std, 1e-8)

@@ -1,0 +1,76 @@
+"""The detectors by name: the names ``railwatch train --detector`` takes.
+
+An entry is a class plus config overrides, so that variants of one class (the attention model's
+scoring modes) are rows of their own without a class each. Classes are imported on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from railwatch.detectors.base import Detector, config_from_dict
+from railwatch.errors import RailwatchError
+
+
+@dataclass(frozen=True)
+class Entry:
+    target: str  # "module:Class"
+    description: str
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+
+
+REGISTRY: dict[str, Entry] = {
+    "lstm-ed": Entry("railwatch.detectors.lstm_ed:LSTMEncoderDecoder",
+                     "LSTM encoder-decoder (Malhotra et al. 2016), reverse-order decoding, "
+                     "Mahalanobis error score"),
+    "cnn-ae": Entry("railwatch.detectors.cnn_ae:CNNAutoencoder",
+                    "1-D convolutional autoencoder, standardised squared reconstruction error"),
+    "mscred": Entry("railwatch.detectors.mscred:MSCRED",
+                    "MSCRED (Zhang et al. 2019): signature matrices, attention ConvLSTM, "
+                    "broken-entry count"),
+    "anomaly-transformer": Entry("railwatch.detectors.anomaly_transformer:AnomalyTransformer",
+                                 "Anomaly Transformer (Xu et al. 2022), official mathematics: "
+                                 "association discrepancy x reconstruction error"),
+    "aft-attention": Entry("railwatch.detectors.attention_transformer:AttentionFocusedTransformer",
+                           "the paper's Attention-Focused Transformer, scored by how its "
+                           "attention deviates from training (the paper's contribution)",
+                           {"scoring": "attention"}),
+    "aft-reconstruction": Entry(
+        "railwatch.detectors.attention_transformer:AttentionFocusedTransformer",
+        "the paper's Attention-Focused Transformer, scored by reconstruction error",
+        {"scoring": "reconstruction"}),
+    "aft-combined": Entry(
+        "railwatch.detectors.attention_transformer:AttentionFocusedTransformer",
+        "the paper's Attention-Focused Transformer, attention and reconstruction scores combined",
+        {"scoring": "combined"}),
+    "matched-filter": Entry("railwatch.detectors.matched_filter:MatchedFilter",
+                            "classical baseline: robust linear predictor + matched filters for "
+                            "spikes and 5-20-sample boxes, no network"),
+    "oracle": Entry("railwatch.detectors.oracle:Oracle",
+                    "ceiling (synthetic data only): GLR test on the residual whitened with the "
+                    "generator's true nuisance signal and noise std"),
+}
+
+
+def names() -> list[str]:
+    return list(REGISTRY)
+
+
+def class_for(name: str) -> type[Detector]:
+    """The detector class registered under ``name``."""
+    if name not in REGISTRY:
+        raise RailwatchError(f"unknown detector {name!r}; available: {', '.join(REGISTRY)}")
+    module, cls = REGISTRY[name].target.split(":")
+    return getattr(importlib.import_module(module), cls)  # type: ignore[no-any-return]
+
+
+def create(name: str, overrides: Mapping[str, Any] | None = None) -> Detector:
+    """A new, unfitted detector: the entry's overrides, then the caller's (unknown keys raise)."""
+    cls = class_for(name)
+    config = config_from_dict(cls.Config, {**REGISTRY[name].overrides, **(overrides or {})})
+    det = cls(config)
+    det.registry_name = name
+    return det

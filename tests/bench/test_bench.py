@@ -1,0 +1,132 @@
+"""The benchmark run end to end through the CLI, resumability, presets and the Ray executor."""
+
+from __future__ import annotations
+
+import json
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+
+from railwatch.bench.presets import load_preset
+from railwatch.cli import main
+from railwatch.errors import RailwatchError
+
+OUTPUTS = ("results.json", "table1.md", "table1.csv", "table2.md", "localization.md",
+           "auc_vs_stage.png", "auc_point_vs_stage.png", "score_hist.png", "stages.png",
+           "report.html")
+SMOKE = ["-q", "bench", "--preset", "smoke", "--stages", "1,3", "--detectors",
+         "cnn-ae,matched-filter"]
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory) -> Path:  # type: ignore[no-untyped-def]
+    out = tmp_path_factory.mktemp("bench") / "smoke"
+    assert main([*SMOKE, "--out", str(out)]) == 0
+    return out
+
+
+def test_smoke_run_writes_every_output(smoke_run: Path) -> None:
+    for name in OUTPUTS:
+        assert (smoke_run / name).stat().st_size > 0, name
+    results = json.loads((smoke_run / "results.json").read_text())
+    cells = results["cells"]
+    assert {(c["stage"], c["detector"]) for c in cells} == {
+        (s, d) for s in (1, 3) for d in ("cnn-ae", "matched-filter")}
+    for c in cells:
+        for key in ("auc_instance", "auc_point", "auc_paper7", "ap_instance", "f1_fitted",
+                    "loc_time", "fit_s", "score_s", "config", "environment", "n_channels"):
+            assert key in c, key
+        assert 0 <= c["auc_instance"] <= 1
+        assert (c["loc_channel"] is None) == (c["stage"] == 1)
+    table1 = (smoke_run / "table1.md").read_text()
+    assert "paper 0.960" in table1 and "(drop)" in table1  # cnn-ae's paper value, stage drops
+    assert "paper 67.1" in (smoke_run / "table2.md").read_text()
+
+
+def test_second_run_recomputes_nothing(smoke_run: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    cell_files = sorted((smoke_run / "cells").glob("*"))
+    before = {p: p.stat().st_mtime_ns for p in cell_files}
+    assert main([*SMOKE[1:], "--out", str(smoke_run)]) == 0  # not quiet: the summary prints
+    out, err = capsys.readouterr()
+    assert "4 reused" in err and "report:" in out
+    assert {p: p.stat().st_mtime_ns for p in cell_files} == before
+
+
+class _Collector(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.stack: list[str] = []
+        self.images: list[str] = []
+        self.tables = 0
+
+    def handle_starttag(self, tag, attrs):  # type: ignore[no-untyped-def]
+        if tag not in ("img", "meta", "br"):
+            self.stack.append(tag)
+        if tag == "img":
+            self.images.append(dict(attrs)["src"])
+        self.tables += tag == "table"
+
+    def handle_endtag(self, tag):  # type: ignore[no-untyped-def]
+        assert self.stack and self.stack[-1] == tag, (self.stack[-3:], tag)
+        self.stack.pop()
+
+
+def test_report_is_valid_and_self_contained(smoke_run: Path) -> None:
+    html = (smoke_run / "report.html").read_text()
+    parser = _Collector()
+    parser.feed(html)
+    assert parser.stack == []  # every element closed, properly nested
+    assert parser.tables >= 5 and len(parser.images) >= 4
+    assert all(src.startswith("data:image/png;base64,") for src in parser.images)
+    assert "http://" not in html and "https://" not in html  # opens offline
+
+
+def test_preset_errors() -> None:
+    with pytest.raises(RailwatchError, match="unknown preset"):
+        load_preset("gigantic")
+    with pytest.raises(RailwatchError, match="stages must be 1-8"):
+        load_preset("smoke", stages=(0, 9))
+    with pytest.raises(RailwatchError, match="unknown detector"):
+        load_preset("smoke", detectors=("nope",))
+
+
+def test_every_preset_file_loads() -> None:
+    from railwatch.bench.presets import PRESET_DIR
+
+    files = sorted(PRESET_DIR.glob("*.yaml"))
+    assert {p.stem for p in files} >= {"smoke", "quick", "standard"}
+    for p in files:
+        load_preset(p)  # validates every detector override against its config
+
+
+def test_bad_bench_arguments(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main(["bench", "--preset", "smoke", "--out", str(tmp_path / "x"),
+                 "--stages", "1,a"]) == 1
+    assert "comma" in capsys.readouterr().err
+    assert main(["bench", "--preset", "smoke", "--out", str(tmp_path / "x"),
+                 "--address", "1.2.3.4:6379"]) == 1
+    assert "--executor ray" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_ray_executor_matches_local(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    pytest.importorskip("ray")
+    import ray
+
+    args = ["-q", "bench", "--preset", "smoke", "--stages", "1,3", "--detectors",
+            "oracle,matched-filter"]
+    assert main([*args, "--out", str(tmp_path / "local")]) == 0
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        assert main([*args, "--executor", "ray", "--out", str(tmp_path / "ray")]) == 0
+    finally:
+        ray.shutdown()
+    metrics = ("auc_instance", "auc_point", "auc_paper7", "ap_instance", "f1_fitted",
+               "loc_time", "loc_channel")
+
+    def read(p: Path) -> dict:  # type: ignore[type-arg]
+        cells = json.loads((p / "results.json").read_text())["cells"]
+        return {(c["stage"], c["detector"]): [c[m] for m in metrics] for c in cells}
+
+    assert read(tmp_path / "local") == read(tmp_path / "ray")
