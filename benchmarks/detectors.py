@@ -25,8 +25,11 @@ from railwatch.evaluation.metrics import auc_instance, score_seconds
 from railwatch.synthetic import generate
 
 #: Equal-size comparison of the attention model and the Anomaly Transformer (paper's Table II
-#: claim: 502.5 s vs 673.5 s). Both models name these fields alike.
-EQUAL_SIZE = {"d_model": 64, "n_heads": 4, "n_layers": 2}
+#: claim: 502.5 s vs 673.5 s): the same width, heads, depth and feed-forward width.
+EQUAL_SIZE = {
+    "aft-attention": {"d_model": 64, "n_heads": 4, "n_layers": 2, "d_ff": 64},
+    "anomaly-transformer": {"d_model": 64, "n_heads": 4, "e_layers": 2, "d_ff": 64},
+}
 
 
 def cpu_name() -> str:
@@ -71,10 +74,10 @@ def main() -> None:
               f"score6 {score6:.2f}s", file=sys.stderr)
 
     equal = []
-    if {"anomaly-transformer", "aft-attention"} <= set(chosen):
+    if "aft-attention" in chosen:
         small = generate(5, 256, 0)
         for name in ("aft-attention", "anomaly-transformer"):
-            det = create(name, {"progress": False, "epochs": 1, **EQUAL_SIZE}).fit(small.X)
+            det = create(name, {"progress": False, "epochs": 1, **EQUAL_SIZE[name]}).fit(small.X)
             equal.append((name, score_seconds(det, s5_test.X)))
 
     lines = [
@@ -90,7 +93,8 @@ def main() -> None:
     if equal:
         (_, t_aft), (_, t_at) = equal
         lines += ["", "## Equal size: attention model vs Anomaly Transformer", "",
-                  f"Both at {EQUAL_SIZE}, scoring 3,000 six-channel windows at batch 32 "
+                  "Both at d_model 64, 4 heads, 2 layers, feed-forward width 64, scoring 3,000 "
+                  "six-channel windows at batch 32 "
                   "(median of 3, after a warm-up batch):", "",
                   "| model | seconds |", "|---|---|",
                   f"| aft-attention | {t_aft:.2f} |", f"| anomaly-transformer | {t_at:.2f} |",

@@ -78,9 +78,9 @@ def stage1_auc(scoring: str) -> float:
 
 @pytest.mark.slow
 def test_attention_mode_auc_floor_stage1() -> None:
-    assert stage1_auc("attention") >= 0.83  # measured 0.879
+    assert stage1_auc("attention") >= 0.87  # measured 0.897
 
 
 @pytest.mark.slow
 def test_reconstruction_mode_auc_floor_stage1() -> None:
-    assert stage1_auc("reconstruction") >= 0.90  # measured 0.943
+    assert stage1_auc("reconstruction") >= 0.90  # measured 0.933

@@ -73,8 +73,9 @@ def preset_from_dict(values: dict[str, Any], source: str = "preset") -> Preset:
     if unknown:
         raise RailwatchError(f"{source}: unknown key(s) {', '.join(unknown)}; valid: "
                              f"{', '.join(sorted(known))}")
-    p = replace(Preset(), **{k: tuple(v) if isinstance(v, list) else v
-                             for k, v in values.items()})
+    converted: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in values.items()}
+    p = replace(Preset(), **converted)
     for key in ("n_train", "n_test", "seeds", "timing_repeats"):
         if not isinstance(getattr(p, key), int) or getattr(p, key) < 1:
             raise RailwatchError(f"{source}: {key} must be a positive integer")

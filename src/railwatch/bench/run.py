@@ -124,7 +124,8 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
         "example_channel": scores.channel[examples],
     }
     if cell.detector in ATTENTION_DETECTORS:
-        sub = {k: v[examples] for k, v in ctx(test).items()} if det.needs else None
+        full = ctx(test)
+        sub = {k: v[examples] for k, v in full.items()} if full else None
         extras = det.score(test.X[examples], sub, extras=True).extras
         arrays.update({f"extra_{k}": v for k, v in extras.items()})
     record = {

@@ -24,15 +24,23 @@ at the same phase), and the decoder learns the smooth signal rather than the ide
 
 Scores (``scoring``):
 
-- ``attention`` (the paper's contribution). Per layer, head and token, two features of the
-  attention maps: the attention *mass a token receives* (column sum of the map) and the *entropy of
-  its own row*. A one-sample spike or a 5-20-sample offset gives its token a key and query unlike
-  any the window's other tokens produce, so the rest of the window attends to it abnormally (mass)
-  and its own row becomes atypically sharp or flat (entropy). Each feature is taken relative to
-  its window's median over tokens (the window's own typical attention; frequency, amplitude and
-  noise level vary per window) and standardised by robust statistics (median, MAD) of the
-  validation split per channel, layer and head; the token score is the root mean square of these
-  z-scores over layers, heads and features. Each sample inherits its token's score.
+- ``attention`` (the paper's contribution). Per layer, head and token, three features of the
+  attention maps: the attention *mass a token receives* (column sum of the map), the *entropy of
+  its own row* and its *self-weight* (the diagonal). A one-sample spike or a 5-20-sample offset
+  gives its token a key and query unlike any the window's other tokens produce, so the rest of the
+  window attends to it abnormally (mass) and its own row becomes atypically sharp or flat
+  (entropy, self-weight). Each feature is taken relative to its window's median over tokens (the
+  window's own typical attention; frequency, amplitude and noise level vary per window) and
+  standardised by robust statistics (median, MAD) of the validation split per channel, layer and
+  head. The input attention gives a fourth, per-sample deviation: log ``a_t`` relative to the
+  window median, standardised the same way. The sample score is the root mean square of two
+  equally weighted parts: the mean squared encoder z-score of the sample's token, and the squared
+  input-attention z-score of the sample (the spike detector: a spike is diluted in its 8-sample
+  token but not in the per-sample saliency; weighting it as one feature among 13 cost ~0.02 AUC).
+  Stage 1 (train ``generate(1, 2000, seed=0)``, test ``generate(1, 1000, seed=1)``): instance
+  ROC-AUC 0.897 attention, 0.933 reconstruction, 0.906 combined; the attention score's argmax lies
+  inside the true span in 36 % of anomalies. The attention score varies with the training seed
+  (0.84 at seed 1).
 - ``reconstruction``: squared reconstruction error per sample and channel, divided by its window
   median (a scale-free ratio, robust to the per-window noise level) and standardised per channel by
   validation statistics (median, MAD).
@@ -336,12 +344,15 @@ class AttentionFocusedTransformer(TorchDetector):
         return z_enc, z_inp.transpose(0, 2, 1)
 
     def _attention_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
-        """Attention deviation per sample and channel (N, T, C): the root mean square of the
-        encoder z-scores of the sample's token and the input-attention z-score of the sample."""
+        """Attention deviation per sample and channel (N, T, C): the root mean square of two equally
+        weighted parts, the encoder's mean squared z-score (its token's, over layers, heads and
+        features) and the input attention's squared z-score of the sample itself. The input
+        attention is the only per-sample attention (the spike detector); weighted as one feature
+        among 3 · layers · heads + 1 it was drowned by the encoder's."""
         z_enc, z_inp = self._attention_z(raw)
         n_steps = z_inp.shape[1]
-        sq_enc = tokens_to_steps((z_enc**2).sum(axis=2), self.config.patch, n_steps)  # (N, T, C)
-        return np.sqrt((sq_enc + z_inp**2) / (z_enc.shape[2] + 1))
+        sq_enc = tokens_to_steps((z_enc**2).mean(axis=2), self.config.patch, n_steps)  # (N, T, C)
+        return np.sqrt((sq_enc + z_inp**2) / 2)
 
     def _reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
         return np.log(window_relative_error(raw["sq_error"]))  # (N, T, C)
