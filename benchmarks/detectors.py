@@ -13,13 +13,13 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import sys
 import time
 from pathlib import Path
 
 import torch
 
+from railwatch.bench.run import cpu_name
 from railwatch.detectors import create, names
 from railwatch.evaluation.metrics import auc_instance, score_seconds
 from railwatch.synthetic import generate
@@ -30,16 +30,6 @@ EQUAL_SIZE = {
     "aft-attention": {"d_model": 64, "n_heads": 4, "n_layers": 2, "d_ff": 64},
     "anomaly-transformer": {"d_model": 64, "n_heads": 4, "e_layers": 2, "d_ff": 64},
 }
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def context(d):  # type: ignore[no-untyped-def]
