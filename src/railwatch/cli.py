@@ -372,10 +372,9 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
         raise RailwatchError("--address goes with --executor ray")
     names = tuple(d.strip() for d in detector_names.split(",")) if detector_names else None
     p = load_preset(preset, stages=_int_list(stages, "--stages"), detectors=names, seeds=seeds)
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise RailwatchError(f"cannot write {out}: folder {parent} does not exist")
-    out.mkdir(exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise RailwatchError(f"--out {out} is a file: give a folder for the run")
+    out.mkdir(parents=True, exist_ok=True)
     total = len(cells(p))
     started = time.perf_counter()
     from tqdm.auto import tqdm

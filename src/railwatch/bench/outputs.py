@@ -106,9 +106,10 @@ def _attention_example(preset, store, seed0, arrays):  # type: ignore[no-untyped
         if c.detector not in ATTENTION_DETECTORS:
             continue
         a = arrays[(c.stage, c.detector)]
-        maps = a.get("extra_attention")
-        if maps is None:
+        layers = [a[k] for k in sorted(a) if k.startswith("extra_attention_")]
+        if not layers:
             return None
+        maps = np.stack(layers, axis=2)  # (n_examples, C, layers, heads, L, L)
         kinds = a["kind"][a["example_index"]]
         j = int(np.argmax(kinds == 2)) if (kinds == 2).any() else 0
         test = dataset(store.cache, c.stage, c.seed, preset.n_test, "test")

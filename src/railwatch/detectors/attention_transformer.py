@@ -355,7 +355,8 @@ class AttentionFocusedTransformer(TorchDetector):
         return np.sqrt((sq_enc + z_inp**2) / 2)
 
     def _reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
-        return np.log(window_relative_error(raw["sq_error"]))  # (N, T, C)
+        # Floored: an error of exactly 0 (float32) would give −inf.
+        return np.log(np.maximum(window_relative_error(raw["sq_error"]), 1e-12))  # (N, T, C)
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
         enc, inp = self._attention_relative(raw)  # per channel and feature (layer, head, kind):
