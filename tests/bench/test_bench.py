@@ -53,6 +53,17 @@ def test_second_run_recomputes_nothing(smoke_run: Path, capsys) -> None:  # type
     assert {p: p.stat().st_mtime_ns for p in cell_files} == before
 
 
+def test_attention_model_variants_share_one_training(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    out = tmp_path / "shared"
+    assert main(["-q", "bench", "--preset", "smoke", "--stages", "1", "--detectors",
+                 "aft-attention,aft-reconstruction,aft-combined", "--out", str(out)]) == 0
+    cells = json.loads((out / "results.json").read_text())["cells"]
+    assert [c["trained_by"] for c in cells] == ["aft-attention"] * 3
+    assert len({c["threshold"] for c in cells}) == 3  # each mode fits its own threshold
+    assert len(list((out / "cache" / "models").iterdir())) == 1
+    assert cells[1]["fit_s"] >= cells[0]["fit_s"]  # the shared training's time is counted
+
+
 class _Collector(HTMLParser):
     def __init__(self) -> None:
         super().__init__()
@@ -115,7 +126,7 @@ def test_ray_executor_matches_local(tmp_path) -> None:  # type: ignore[no-untype
     import ray
 
     args = ["-q", "bench", "--preset", "smoke", "--stages", "1,3", "--detectors",
-            "oracle,matched-filter"]
+            "oracle,matched-filter,cnn-ae"]
     assert main([*args, "--out", str(tmp_path / "local")]) == 0
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:

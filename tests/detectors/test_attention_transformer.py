@@ -58,16 +58,28 @@ def test_attention_changes_where_an_anomaly_is_injected(fitted) -> None:  # type
     assert not np.allclose(a["input_attention"], b["input_attention"])
 
 
-def test_modes_share_one_model(fitted, tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_modes_share_one_model(fitted) -> None:  # type: ignore[no-untyped-def]
     det, clean = fitted
-    scores = {}
-    for mode in ("attention", "reconstruction", "combined"):
-        det.config = AFTConfig(**{**TINY, "scoring": mode})
-        scores[mode] = det.score(clean).channel
-    det.config = AFTConfig(**TINY)
+    train = generate(1, 120, seed=0).X
+    scores = {mode: det.rescored(train, scoring=mode).score(clean).channel
+              for mode in ("attention", "reconstruction", "combined")}
     np.testing.assert_allclose(scores["combined"],
                                (scores["attention"] + scores["reconstruction"]) / 2, rtol=1e-5,
                                atol=1e-5)
+    assert det.config.scoring == "attention"  # the original is untouched
+
+
+def test_rescored_equals_a_model_fitted_in_that_mode() -> None:
+    train, test = generate(3, 120, seed=0).X, generate(3, 20, seed=1).X
+    trained = create("aft-attention", TINY).fit(train)
+    direct = create("aft-reconstruction", TINY).fit(train)
+    switched = trained.rescored(train, scoring="reconstruction")
+    assert switched.threshold_ == direct.threshold_ != trained.threshold_
+    np.testing.assert_array_equal(switched.score(test).channel, direct.score(test).channel)
+    with pytest.raises(RailwatchError, match="epochs changes what .* learns"):
+        trained.rescored(train, epochs=5)
+    with pytest.raises(RailwatchError, match="unknown scoring mode"):
+        trained.rescored(train, scoring="entropy")
 
 
 def stage1_auc(scoring: str) -> float:

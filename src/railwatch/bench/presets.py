@@ -13,10 +13,11 @@ from railwatch.errors import RailwatchError
 
 PRESET_DIR = Path(__file__).resolve().parents[3] / "configs" / "presets"
 
-#: The paper's five models (the attention model in both paper variants) and the two references.
+#: The paper's five models (the attention model in its two paper variants and their combination,
+#: all three from one trained network) and the two references.
 DEFAULT_DETECTORS = (
     "lstm-ed", "cnn-ae", "mscred", "anomaly-transformer", "aft-attention", "aft-reconstruction",
-    "matched-filter", "oracle",
+    "aft-combined", "matched-filter", "oracle",
 )
 
 

@@ -17,13 +17,16 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from railwatch.atomic import atomic_path
 from railwatch.bench.presets import Preset
 from railwatch.synthetic import SPEC_VERSION, SyntheticSet, generate
+
+if TYPE_CHECKING:  # torch is imported only when a cell runs
+    from railwatch.detectors.base import Detector
 
 log = logging.getLogger(__name__)
 
@@ -101,11 +104,59 @@ def environment() -> dict[str, Any]:
     }
 
 
+def training_key(det: Detector, cell: Cell, preset: Preset) -> str:
+    """What a fitted model depends on: class, config without scoring-only fields, data."""
+    learned = {k: v for k, v in asdict(det.config).items()
+               if k not in det.scoring_fields and k != "progress"}
+    spec = {"class": f"{type(det).__module__}.{type(det).__qualname__}", "config": learned,
+            "stage": cell.stage, "seed": cell.seed, "n_train": preset.n_train,
+            "spec": SPEC_VERSION}
+    digest = hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()
+    return f"stage{cell.stage}-seed{cell.seed}-{digest[:12]}"
+
+
+def fit_or_reuse(
+    det: Detector, cell: Cell, preset: Preset, cache: Path, X: Any, context: Any
+) -> tuple[Detector, float, str]:
+    """Fit ``det`` on the training windows, or reuse a model trained the same way.
+
+    Detectors of one class whose configs differ only in scoring-only fields (the attention
+    model's ``attention``, ``reconstruction`` and ``combined`` rows) share one trained model,
+    kept under ``cache/models/``; the reusing cell refits only its threshold. Returns the
+    detector, the fit seconds (the shared training's plus the refit) and the registry name of
+    the cell that trained the network.
+    """
+    from railwatch.detectors.base import load_detector
+
+    folder = cache / "models" / training_key(det, cell, preset)
+    info_path = folder / "fit.json"
+    if info_path.exists():
+        try:
+            info = json.loads(info_path.read_text())
+            trained = load_detector(folder)
+            started = time.perf_counter()
+            reused = trained.rescored(X, context, **{f: getattr(det.config, f)
+                                                     for f in det.scoring_fields})
+            reused.registry_name = cell.detector
+            return reused, float(info["fit_s"]) + time.perf_counter() - started, info["detector"]
+        except Exception:  # noqa: BLE001 - an unreadable shared model is trained again
+            log.warning("training again: cannot reuse the model in %s", folder)
+    started = time.perf_counter()
+    det.fit(X, context)
+    fit_s = time.perf_counter() - started
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    det.save(folder)
+    with atomic_path(info_path) as tmp:
+        tmp.write_text(json.dumps({"fit_s": fit_s, "detector": cell.detector}))
+    return det, fit_s, cell.detector
+
+
 def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and evaluate one detector on one stage and seed: (record, small arrays)."""
     from railwatch.detectors import create
     from railwatch.evaluation.metrics import evaluate_scores, score_seconds
 
+    cell_started = time.perf_counter()
     train = dataset(cache, cell.stage, cell.seed, preset.n_train, "train")
     test = dataset(cache, cell.stage, cell.seed, preset.n_test, "test")
     det = create(cell.detector, {**preset.overrides_for(cell.detector), "seed": cell.seed,
@@ -114,9 +165,7 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
     def ctx(d: SyntheticSet) -> dict[str, Any] | None:
         return {"nuisance": d.nuisance, "noise_std": d.noise_std} if det.needs else None
 
-    started = time.perf_counter()
-    det.fit(train.X, ctx(train))
-    fit_s = time.perf_counter() - started
+    det, fit_s, trained_by = fit_or_reuse(det, cell, preset, cache, train.X, ctx(train))
     scores = det.score(test.X, ctx(test))
     metrics = evaluate_scores(test.y, test.mask, test.channel, scores, det.threshold_)
     score_s = score_seconds(det, test.X, ctx(test), repeats=preset.timing_repeats)
@@ -135,9 +184,11 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
     record = {
         "stage": cell.stage, "detector": cell.detector, "seed": cell.seed,
         "n_train": preset.n_train, "n_test": preset.n_test, "n_channels": int(test.X.shape[2]),
-        **metrics, "fit_s": fit_s, "score_s": score_s, "threshold": det.threshold_,
+        **metrics, "fit_s": fit_s, "trained_by": trained_by, "score_s": score_s,
+        "threshold": det.threshold_,
         "config": asdict(det.config), "environment": environment(),
         "fingerprint": fingerprint(preset, cell), "spec_version": SPEC_VERSION,
+        "cell_s": time.perf_counter() - cell_started,  # the whole cell: data, fit, scoring
     }
     return record, arrays
 

@@ -286,6 +286,8 @@ def tokens_to_steps(token_scores: NDArray[Any], patch: int, n_steps: int) -> NDA
 class AttentionFocusedTransformer(TorchDetector):
     Config: ClassVar[type[DetectorConfig]] = AFTConfig
     config: AFTConfig  # type: ignore[assignment]
+    # fit_statistics fits every mode's statistics, so the mode can change after training.
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
 
     def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
         super().__init__(config, **overrides)

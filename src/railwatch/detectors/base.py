@@ -212,6 +212,9 @@ class Detector(ABC):
     normalize: ClassVar[bool] = True
     fixed_length: ClassVar[bool] = True
     needs: ClassVar[tuple[str, ...]] = ()
+    #: Config fields that change only how a fitted model scores, not what ``fit`` learns: a
+    #: fitted detector switches them with :meth:`rescored` instead of being fitted again.
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination",)
     registry_name: str = ""  # set by the registry (variants of one class differ here)
 
     def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
@@ -233,10 +236,39 @@ class Detector(ABC):
             self.stats_["input_mean"] = mean.astype(np.float32)
             self.stats_["input_std"] = np.where(std > 1e-8, std, 1.0).astype(np.float32)
         self._fit(self._normalized(X), ctx)
-        self.decision_scores_ = self._score(self._normalized(X), ctx, extras=False).instance
+        self._fit_threshold(self._normalized(X), ctx)
+        return self
+
+    def rescored(
+        self, X: Any, context: Mapping[str, Any] | None = None, **changes: Any
+    ) -> Detector:
+        """A copy of this fitted detector with scoring-only settings (``scoring_fields``)
+        changed; its threshold is fitted again on ``X``, the windows it was trained on.
+
+        The network and statistics are shared, not copied: this is how one trained
+        Attention-Focused Transformer gives its ``attention``, ``reconstruction`` and
+        ``combined`` rows without being trained three times.
+        """
+        self._check_fitted()
+        learned = sorted(set(changes) - set(self.scoring_fields))
+        if learned:
+            raise RailwatchError(
+                f"{', '.join(learned)} change{'s' if len(learned) == 1 else ''} what "
+                f"{type(self).__name__} learns: fit a new detector instead"
+            )
+        new = type(self)(config_from_dict(type(self.config), {**asdict(self.config), **changes}))
+        new.__dict__.update({k: v for k, v in self.__dict__.items() if k != "config"})
+        new.stats_ = dict(self.stats_)
+        X = check_windows(X, n_channels=self.n_channels_,
+                          n_steps=self.n_steps_ if self.fixed_length else None)
+        new._fit_threshold(new._normalized(X), new._check_context(context, len(X)))
+        return new
+
+    def _fit_threshold(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
+        """``threshold_``: the ``1 − contamination`` quantile of the training instance scores."""
+        self.decision_scores_ = self._score(X, context, extras=False).instance
         self.threshold_ = float(np.quantile(self.decision_scores_, 1.0 - self.config.contamination))
         self.stats_["threshold"] = np.array(self.threshold_)
-        return self
 
     def score(
         self, X: Any, context: Mapping[str, Any] | None = None, extras: bool = False
