@@ -200,11 +200,55 @@ def model_dir(path: Path) -> Path:
     return path
 
 
-@cli.command()
+def _rate(value: str) -> float | None:
+    if value.strip().lower() in ("none", "0", "off"):
+        return None
+    try:
+        rate = float(value)
+    except ValueError:
+        raise RailwatchError(f"--resample takes a rate in Hz or 'none', got {value!r}") from None
+    if rate <= 0:
+        raise RailwatchError(f"--resample must be positive, got {value}")
+    return rate
+
+
+def _progress_seconds(total_s: float, desc: str) -> Any:
+    """A progress bar counting seconds of recording (hidden with -q or off a terminal)."""
+    from tqdm.auto import tqdm
+
+    ctx = click.get_current_context()
+    quiet = not (ctx.find_root().obj or {}).get("progress", True)
+    return tqdm(total=round(total_s, 1), desc=desc, unit="s", unit_scale=True,
+                disable=True if quiet else None, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
+                "of recording [{elapsed}<{remaining}]")
+
+
+@cli.command(epilog="""\b
+Recordings: --recordings takes one or more CSV, Parquet, HDF5 or .mat files (shell globs work)
+and --layout a TOML/YAML file naming the channel columns, their sensor groups and the rate:
+  fs = 2000.0
+  time = "t"             # optional; speed = "v" and position = "x" too
+  [channels]
+  axle_left = "axle"     # column = sensor group, in the model's channel order
+  ...
+They are resampled (2000 -> 100 Hz by default), cut into 2-s windows every 1 s and trained on
+without labels; the model folder keeps the layout, the preparation and an event threshold
+for 'railwatch detect'.""")
 @click.option("--detector", "name", required=True, metavar="NAME",
               help="Registry name (see 'railwatch detectors'), e.g. aft-attention.")
-@click.option("--data", type=click.Path(path_type=Path), required=True,
+@click.option("--data", type=click.Path(path_type=Path),
               help="Training windows: an .npz with X (n, T, C); labels in it are never used.")
+@click.option("--recordings", "recordings", multiple=True, type=click.Path(path_type=Path),
+              metavar="PATH...", help="Train on recordings instead of windows (needs --layout).")
+@click.argument("more_recordings", nargs=-1, type=click.Path(path_type=Path))
+@click.option("--layout", "layout_file", type=click.Path(path_type=Path),
+              help="Recording layout (TOML/YAML): columns, groups, rate, time/speed/position.")
+@click.option("--resample", default="100", show_default=True, metavar="HZ|none",
+              help="Rate the model works at; the recording's rate must be a multiple of it.")
+@click.option("--window", "window_s", type=float, default=2.0, show_default=True,
+              help="Window length in seconds (recordings).")
+@click.option("--hop", "hop_s", type=float, default=1.0, show_default=True,
+              help="Seconds between training windows (recordings).")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Model folder to write (replaced only when training succeeded).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path),
@@ -212,28 +256,211 @@ def model_dir(path: Path) -> Path:
 @click.option("--set", "settings", multiple=True, metavar="KEY=VALUE",
               help="Override one config value, e.g. --set epochs=5 --set seed=1. Repeatable.")
 @click.pass_obj
-def train(obj: dict, name: str, data: Path, out: Path, config_file: Path | None,
+def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
+          more_recordings: tuple[Path, ...], layout_file: Path | None, resample: str,
+          window_s: float, hop_s: float, out: Path, config_file: Path | None,
           settings: tuple[str, ...]) -> None:
-    """Train a detector, without labels, on a window file and save it.
+    """Train a detector, without labels, on a window file or on recordings, and save it.
 
     \b
-    Example:
+    Examples:
       railwatch generate --stage 1 --n 2000 --seed 0 --out train.npz
       railwatch train --detector aft-attention --data train.npz --out model/ --set epochs=10
+      railwatch train --detector aft-attention --recordings runs/*.parquet \\
+          --layout layout.toml --out model/
     """
     from railwatch.detectors import create
-    from railwatch.windows import load_windows
 
+    paths = recordings + more_recordings
+    if more_recordings and not recordings:
+        raise RailwatchError(f"unexpected argument {more_recordings[0]}: recordings go after "
+                             "--recordings")
+    if (data is None) == (not paths):
+        raise RailwatchError("give either --data WINDOWS.npz or --recordings FILE... --layout "
+                             "LAYOUT")
     overrides = {"progress": obj["progress"], **read_overrides(config_file, settings)}
     detector = create(name, overrides)
     model_dir(out)
-    windows = load_windows(data)
     started = time.perf_counter()
-    detector.fit(windows.X, windows.components)
-    detector.save(out)
-    info(f"trained {name} on {len(windows.X):,} windows {windows.X.shape[1:]} in "
-         f"{time.perf_counter() - started:.1f} s; threshold {detector.threshold_:.4g}; "
-         f"saved to {out}")
+    if data is not None:
+        from railwatch.windows import load_windows
+
+        windows = load_windows(data)
+        detector.fit(windows.X, windows.components)
+        detector.save(out)
+        info(f"trained {name} on {len(windows.X):,} windows {windows.X.shape[1:]} in "
+             f"{time.perf_counter() - started:.1f} s; threshold {detector.threshold_:.4g}; "
+             f"saved to {out}")
+        return
+    from railwatch.recordings.layout import load_layout
+    from railwatch.recordings.pipeline import null_threshold, recording_info, training_windows
+    from railwatch.recordings.prepare import Preparation
+    from railwatch.recordings.readers import Recording
+
+    if layout_file is None:
+        raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
+                             "see 'railwatch train --help')")
+    layout = load_layout(layout_file)
+    prep = Preparation(rate=_rate(resample), window_s=window_s, train_hop_s=hop_s)
+    prep.factor(layout.fs)  # fail now on an impossible rate
+    total = sum(Recording(p, layout).duration_s for p in paths)
+    with _progress_seconds(total, "reading") as bar:
+        X = training_windows(paths, layout, prep,
+                             progress=lambda n: bar.update(round(n / layout.fs, 3)))
+    if obj["progress"]:
+        info(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
+             f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
+    detector.fit(X)
+    threshold = null_threshold(detector.decision_scores_)
+    detector.save(out, extra_files=recording_info(layout, prep, threshold))
+    info(f"trained {name} in {time.perf_counter() - started:.1f} s; event threshold "
+         f"{threshold:.4g}; saved to {out}")
+
+
+@cli.command()
+@click.option("--model", type=click.Path(path_type=Path), required=True,
+              help="Model folder written by 'railwatch train --recordings'.")
+@click.option("--recording", type=click.Path(path_type=Path), required=True,
+              help="Recording to scan: CSV, Parquet, HDF5 or .mat.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Events file: .csv (a row per event) or .json.")
+@click.option("--layout", "layout_file", type=click.Path(path_type=Path),
+              help="Layout of this recording if its columns differ from the training layout "
+                   "(same channel count and order).")
+@click.option("--plot", type=click.Path(path_type=Path, dir_okay=False),
+              help="Also draw the score along time (and track position) with events, as PNG.")
+@click.option("--threshold", type=float,
+              help="Event threshold instead of the one fitted in training.")
+@click.option("--truth", type=click.Path(path_type=Path),
+              help="CSV of known defects (a 'center_s' or 'time_s' column) to mark on the plot.")
+@click.pass_obj
+def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path | None,
+           plot: Path | None, threshold: float | None, truth: Path | None) -> None:
+    """Scan a recording for defects: events with start, end, peak time, channel and position.
+
+    \b
+    Every 2-s window (every 0.5 s) is scored; each sample takes the highest score of the windows
+    that cover it; runs above the threshold (closer than 0.5 s merged) are events. Streams the
+    file block by block: hours of recording in bounded memory.
+    Example:
+      railwatch detect --model model/ --recording run.parquet --out events.csv --plot run.png
+    """
+    from railwatch.recordings import pipeline
+    from railwatch.recordings.layout import load_layout
+    from railwatch.recordings.readers import Recording
+
+    if out.suffix.lower() not in (".csv", ".json"):
+        raise RailwatchError(f"--out {out.name}: write events to a .csv or .json file")
+    writable_file(out)
+    if plot is not None:
+        writable_file(plot)
+    rm = pipeline.load_recording_model(model)
+    layout = load_layout(layout_file) if layout_file else rm.layout
+    rec = Recording(recording, layout)
+    marks = _truth_times(truth) if truth else None
+    started = time.perf_counter()
+    with _progress_seconds(rec.duration_s, "detect") as bar:
+        result = pipeline.detect(rm.detector, rec, rm.preparation,
+                            rm.threshold if threshold is None else threshold,
+                            progress=lambda n: bar.update(round(n / layout.fs, 3)))
+    elapsed = time.perf_counter() - started
+    pipeline.write_events(out, result.events)
+    if plot is not None:
+        title = (f"{recording.name}: {len(result.events)} events in "
+                 f"{rec.duration_s / 60:.1f} min")
+        pipeline.plot_detection(result, plot, title=title, truth=marks)
+    info(f"{len(result.events)} events in {rec.duration_s / 60:.1f} min of recording, scanned in "
+         f"{elapsed:.1f} s ({rec.duration_s / max(elapsed, 1e-9):.0f}x real time); wrote {out}"
+         + (f" and {plot}" if plot else ""))
+
+
+def _truth_times(path: Path) -> list[float]:
+    import csv
+
+    if not path.is_file():
+        raise RailwatchError(f"no such file: {path}")
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    key = next((k for k in ("center_s", "time_s") if rows and k in rows[0]), None)
+    if key is None:
+        raise RailwatchError(f"{path} needs a 'center_s' or 'time_s' column of defect times")
+    return [float(r[key]) for r in rows]
+
+
+@cli.command()
+@click.option("--model", type=click.Path(path_type=Path), required=True,
+              help="Model folder written by 'railwatch train'.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="ONNX file to write (network + statistics + recording layout, one file).")
+def export(model: Path, out: Path) -> None:
+    """Export a trained deep detector to ONNX, for onnxruntime onboard.
+
+    \b
+    The file holds the network (normalised windows -> raw outputs, dynamic batch) and, as
+    metadata, everything else scoring needs. In Python:
+      from railwatch.deploy.onnx import load_onnx
+      det = load_onnx("model.onnx")      # scores like the PyTorch model (within 1e-3)
+    Example:
+      railwatch export --model model/ --out model.onnx
+    """
+    from railwatch.deploy.onnx import export_onnx, load_onnx
+
+    if out.suffix.lower() != ".onnx":
+        raise RailwatchError(f"--out {out.name}: give a file name ending in .onnx")
+    writable_file(out)
+    started = time.perf_counter()
+    export_onnx(model, out)
+    load_onnx(out)  # fails now, not onboard, if the file does not load
+    info(f"exported {model} to {out} ({out.stat().st_size / 1e6:.2f} MB) in "
+         f"{time.perf_counter() - started:.1f} s")
+
+
+@cli.command("generate-run")
+@click.option("--minutes", type=float, default=10.0, show_default=True,
+              help="Length of the run.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--fs", type=float, default=2000.0, show_default=True, help="Sampling rate (Hz).")
+@click.option("--defect-every", "every_s", type=float, default=10.0, show_default=True,
+              help="Mean seconds between defects.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks).")
+@click.pass_obj
+def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float,
+                 out: Path) -> None:
+    """Synthesise a long six-channel field-rate run with defects at known times and positions.
+
+    \b
+    Writes OUT, OUT's layout (<name>.layout.toml) and the true defects (<name>.defects.csv).
+    Stage-5 signals (axle, bogie, body groups) with a speed profile and changing noise; defects
+    one every 10 s on average: spikes of +-3-4, local deviations of +-1.5-2 (0.05-0.2 s).
+    Example:
+      railwatch generate-run --minutes 10 --seed 1 --out train1.parquet
+    """
+    import csv
+
+    from railwatch.atomic import atomic_path
+    from railwatch.recordings.layout import layout_toml
+    from railwatch.recordings.readers import FORMATS, write_recording
+    from railwatch.synthetic.runs import Run, synthesize_run
+
+    if out.suffix.lower() not in FORMATS:
+        raise RailwatchError(f"--out {out.name}: use .csv, .parquet, .h5 or .mat")
+    if minutes <= 0 or every_s <= 0 or fs <= 0:
+        raise RailwatchError("--minutes, --defect-every and --fs must be positive")
+    writable_file(out)
+    run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s)
+    stem = out.with_suffix("")
+    layout_path, truth_path = Path(f"{stem}.layout.toml"), Path(f"{stem}.defects.csv")
+    with atomic_path(layout_path) as tmp:
+        tmp.write_text(layout_toml(Run.layout(fs)))
+    with atomic_path(truth_path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(run.defects[0]) if run.defects else
+                                ["time_s"], lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(run.defects)
+    write_recording(out, run.columns())
+    info(f"wrote {minutes:g} min at {fs:g} Hz with {len(run.defects)} defects: {out}, "
+         f"{layout_path}, {truth_path}")
 
 
 @cli.command()

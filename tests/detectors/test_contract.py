@@ -3,24 +3,15 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
-import yaml
 
+from conftest import TINY
+from conftest import tiny_config as tiny
 from railwatch.detectors import create, load_detector, names
 from railwatch.errors import RailwatchError
 from railwatch.synthetic import SyntheticSet, generate
-
-TINY = Path(__file__).parents[2] / "configs" / "tiny"
-
-
-def tiny(name: str) -> dict[str, Any]:
-    path = TINY / f"{name}.yaml"
-    values = yaml.safe_load(path.read_text()) if path.exists() else {}
-    return {**(values or {}), "progress": False}
 
 
 def context(d: SyntheticSet) -> dict[str, np.ndarray]:

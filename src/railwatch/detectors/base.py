@@ -307,8 +307,13 @@ class Detector(ABC):
         return None
 
     # -- persistence ---------------------------------------------------------------------
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the fitted detector into the directory ``path`` (replaced only when complete)."""
+    def save(self, path: str | os.PathLike[str],
+             extra_files: Mapping[str, str] | None = None) -> Path:
+        """Write the fitted detector into the directory ``path`` (replaced only when complete).
+
+        ``extra_files`` (name -> text) are written into the same directory, in the same atomic
+        step: for example the recording layout of a model trained on recordings.
+        """
         self._check_fitted()
         path = Path(path)
         if path.exists() and not (path / "detector.json").is_file() and any(path.iterdir()):
@@ -329,6 +334,8 @@ class Detector(ABC):
                 "n_channels": self.n_channels_,
             }
             (tmp / "detector.json").write_text(json.dumps(header, indent=2))
+            for name, text in (extra_files or {}).items():
+                (tmp / name).write_text(text)
             np.savez(tmp / "stats.npz", **self.stats_)  # type: ignore[arg-type]
             state = self._state_dict()
             if state is not None:
@@ -541,15 +548,25 @@ class TorchDetector(Detector):
             count += len(xb)
         return total / max(count, 1)
 
+    #: Set on a detector loaded from ONNX: runs the network instead of ``model_`` (a callable
+    #: from a normalised batch (B, T, C) to the raw outputs as arrays).
+    backend_: Any = None
+
     @torch.no_grad()
     def _raw_all(self, X: FloatArray) -> dict[str, NDArray[Any]]:
         """Raw outputs of all windows, in batches of ``batch_size``."""
-        self.model_.eval()
+        if self.backend_ is None:
+            self.model_.eval()
         parts: dict[str, list[NDArray[Any]]] = {}
         for i in range(0, len(X), self.config.batch_size):
-            xb = torch.from_numpy(np.ascontiguousarray(X[i:i + self.config.batch_size]))
-            for k, v in self.raw(xb.to(self.device_)).items():
-                parts.setdefault(k, []).append(v.float().cpu().numpy())
+            batch = np.ascontiguousarray(X[i:i + self.config.batch_size])
+            if self.backend_ is not None:
+                out = self.backend_(batch)
+            else:
+                out = {k: v.float().cpu().numpy()
+                       for k, v in self.raw(torch.from_numpy(batch).to(self.device_)).items()}
+            for k, v in out.items():
+                parts.setdefault(k, []).append(v)
         return {k: np.concatenate(v) for k, v in parts.items()}
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:

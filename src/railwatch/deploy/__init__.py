@@ -1,0 +1,1 @@
+"""Onboard deployment: ONNX export and onnxruntime scoring."""

@@ -1,0 +1,1 @@
+"""Real recordings: layouts, readers, preparation, detection along the track."""

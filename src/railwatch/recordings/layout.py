@@ -1,0 +1,138 @@
+"""The recording layout: which columns of a user's file are which sensors, and at what rate.
+
+A small TOML or YAML file (``--layout``), for example::
+
+    fs = 2000.0                 # sampling rate of the file (Hz)
+    time = "t"                  # optional: time column (s); checked for gaps and rate
+    speed = "speed"             # optional: train speed (m/s), integrated to a track position
+    position = "pos"            # optional: track position (m); preferred over speed
+
+    [channels]                  # accelerometer columns, in the order the model sees them,
+    axle_left = "axle"          # each with its sensor group
+    axle_right = "axle"
+    bogie_left = "bogie"
+    bogie_right = "bogie"
+    body_left = "body"
+    body_right = "body"
+
+``channels`` may also be a plain list of names (groups then default to ``"sensor"``). A name is a
+column (CSV, Parquet), a dataset path (HDF5, e.g. ``"acc/axle_left"``) or a variable (MATLAB).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from railwatch.errors import RailwatchError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+KEYS = ("fs", "channels", "time", "speed", "position")
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the data are in a recording file."""
+
+    fs: float  # Hz
+    channels: tuple[str, ...]
+    groups: tuple[str, ...]
+    time: str | None = None
+    speed: str | None = None
+    position: str | None = None
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Every column to read: channels, then time, speed and position where named."""
+        extra = tuple(c for c in (self.time, self.speed, self.position) if c)
+        return self.channels + extra
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["channels"], d["groups"] = list(self.channels), list(self.groups)
+        return d
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], source: str = "layout") -> Layout:
+        return parse_layout(values, source)
+
+
+def parse_layout(values: Any, source: str = "layout") -> Layout:
+    """Validate a layout mapping; every problem is one line naming the key."""
+    if not isinstance(values, dict):
+        raise RailwatchError(f"{source}: a layout is a table of keys ({', '.join(KEYS)})")
+    unknown = sorted(set(values) - set(KEYS) - {"groups"})
+    if unknown:
+        raise RailwatchError(f"{source}: unknown key(s) {', '.join(unknown)}; "
+                             f"valid: {', '.join(KEYS)}")
+    if "fs" not in values:
+        raise RailwatchError(f"{source}: 'fs' (the file's sampling rate in Hz) is required")
+    try:
+        fs = float(values["fs"])
+    except (TypeError, ValueError):
+        raise RailwatchError(f"{source}: fs must be a number of Hz, got {values['fs']!r}") from None
+    if not fs > 0:
+        raise RailwatchError(f"{source}: fs must be positive, got {fs}")
+    raw = values.get("channels")
+    if isinstance(raw, dict):
+        channels = tuple(str(k) for k in raw)
+        groups = tuple(str(v) for v in raw.values())
+    elif isinstance(raw, list | tuple) and raw:
+        channels = tuple(str(c) for c in raw)
+        given = values.get("groups")
+        groups = tuple(str(g) for g in given) if given else ("sensor",) * len(channels)
+        if len(groups) != len(channels):
+            raise RailwatchError(f"{source}: {len(groups)} groups for {len(channels)} channels")
+    else:
+        raise RailwatchError(f"{source}: 'channels' must list the accelerometer columns "
+                             "(a list of names, or a table name = group)")
+    if len(set(channels)) != len(channels):
+        raise RailwatchError(f"{source}: a channel is named twice")
+    named = {k: (str(values[k]) if values.get(k) else None) for k in ("time", "speed", "position")}
+    clash = [v for v in named.values() if v in channels]
+    if clash:
+        raise RailwatchError(f"{source}: column {clash[0]!r} is both a channel and time/speed/"
+                             "position")
+    return Layout(fs=fs, channels=channels, groups=groups, **named)
+
+
+def load_layout(path: str | os.PathLike[str]) -> Layout:
+    """Read a layout file (``.toml``, ``.yaml``/``.yml`` or ``.json``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise RailwatchError(f"no such layout file: {path}")
+    text = path.read_text()
+    try:
+        if path.suffix == ".toml":
+            values: Any = tomllib.loads(text)
+        elif path.suffix == ".json":
+            values = json.loads(text)
+        else:
+            values = yaml.safe_load(text)
+    except (tomllib.TOMLDecodeError, yaml.YAMLError, json.JSONDecodeError) as e:
+        raise RailwatchError(f"cannot parse layout {path}: {' '.join(str(e).split())[:160]}") \
+            from None
+    return parse_layout(values, str(path))
+
+
+def layout_toml(layout: Layout) -> str:
+    """The layout as a TOML file (what :func:`load_layout` reads back)."""
+    lines = [f"fs = {layout.fs!r}"]
+    for key in ("time", "speed", "position"):
+        value = getattr(layout, key)
+        if value:
+            lines.append(f"{key} = {json.dumps(value)}")
+    lines += ["", "[channels]"]
+    lines += [f"{json.dumps(c)} = {json.dumps(g)}" for c, g in zip(layout.channels, layout.groups,
+                                                                   strict=True)]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,376 @@
+"""Readers for recordings as users have them: CSV, Parquet, HDF5 and MATLAB ``.mat``.
+
+Every reader streams: :meth:`Recording.chunks` yields blocks of rows, so an hours-long recording
+never has to fit in memory (MATLAB v5 files, which scipy reads whole, are the one exception;
+v7.3 files are HDF5 and stream). Every block is checked on the way: each named column present,
+numeric and finite; the time column (when named) increasing, at the layout's rate, without gaps.
+Problems are one-line :class:`RailwatchError` messages naming the column and the row (1-based,
+data rows only).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railwatch.errors import RailwatchError
+from railwatch.recordings.layout import Layout
+
+FORMATS = {".csv": "csv", ".txt": "csv", ".parquet": "parquet", ".pq": "parquet", ".h5": "hdf5",
+           ".hdf5": "hdf5", ".hdf": "hdf5", ".mat": "mat"}
+#: Rows per block when streaming (60 s at 2000 Hz).
+CHUNK_ROWS = 120_000
+#: A time step longer than this many sample periods is a gap.
+GAP_FACTOR = 1.5
+#: Allowed relative difference between the time column's median step and 1 / fs.
+RATE_TOLERANCE = 0.01
+
+
+@dataclass
+class Chunk:
+    """Consecutive rows of a recording: channels (n, C) float32 and the optional columns."""
+
+    start: int  # index of the first row in the recording
+    data: NDArray[np.float32]
+    time: NDArray[np.float64] | None = None
+    speed: NDArray[np.float64] | None = None
+    position: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+
+class Recording:
+    """One recording file read through its layout. ``chunks()`` streams it; ``read()`` loads it."""
+
+    def __init__(self, path: str | os.PathLike[str], layout: Layout) -> None:
+        self.path = Path(path)
+        self.layout = layout
+        if not self.path.is_file():
+            raise RailwatchError(f"no such recording: {self.path}")
+        kind = FORMATS.get(self.path.suffix.lower())
+        if kind is None:
+            raise RailwatchError(
+                f"cannot read {self.path.name}: unknown format {self.path.suffix or '(none)'}; "
+                f"railwatch reads {', '.join(sorted(set(FORMATS)))}")
+        self.format = kind
+        self._source = _SOURCES[kind](self.path, layout)
+        self.n_samples: int = self._source.n_rows()
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_samples / self.layout.fs
+
+    def chunks(self, rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
+        """Blocks of at most ``rows`` rows, checked, in order."""
+        checker = _TimeChecker(self.layout)
+        start = 0
+        for columns in self._source.blocks(rows):
+            chunk = _make_chunk(columns, self.layout, start)
+            checker.check(chunk)
+            start += len(chunk)
+            yield chunk
+
+    def read(self) -> Chunk:
+        """The whole recording as one chunk."""
+        parts = list(self.chunks())
+        if not parts:
+            raise RailwatchError(f"{self.path} holds no data rows")
+
+        def cat(name: str) -> Any:
+            values = [getattr(p, name) for p in parts]
+            return None if values[0] is None else np.concatenate(values)
+
+        return Chunk(0, cat("data"), cat("time"), cat("speed"), cat("position"))
+
+
+def open_recording(path: str | os.PathLike[str], layout: Layout) -> Recording:
+    return Recording(path, layout)
+
+
+# ----------------------------------------------------------------------------- checks
+def _make_chunk(columns: dict[str, NDArray[Any]], layout: Layout, start: int) -> Chunk:
+    for name, values in columns.items():
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = start + int(np.argmax(bad)) + 1
+            what = "NaN or empty" if np.isnan(values[bad][0]) else "infinite"
+            raise RailwatchError(f"column {name!r} is {what} at row {row} ({int(bad.sum())} such "
+                                 "values in this block): clean or cut the recording there")
+    data = np.stack([columns[c] for c in layout.channels], axis=1).astype(np.float32)
+
+    def opt(name: str | None) -> NDArray[np.float64] | None:
+        return None if name is None else columns[name].astype(np.float64)
+
+    return Chunk(start, data, opt(layout.time), opt(layout.speed), opt(layout.position))
+
+
+class _TimeChecker:
+    """Increasing time at the layout's rate, no gaps, across block boundaries."""
+
+    def __init__(self, layout: Layout) -> None:
+        self.layout = layout
+        self.last: float | None = None
+
+    def check(self, chunk: Chunk) -> None:
+        if chunk.time is None or len(chunk) == 0:
+            return
+        t = chunk.time if self.last is None else np.concatenate([[self.last], chunk.time])
+        first_row = chunk.start + (1 if self.last is None else 0)  # row of t[1], 1-based
+        self.last = float(chunk.time[-1])
+        if len(t) < 2:
+            return
+        dt = np.diff(t)
+        period = 1.0 / self.layout.fs
+        back = dt <= 0
+        if back.any():
+            i = int(np.argmax(back))
+            raise RailwatchError(f"time column {self.layout.time!r} does not increase at row "
+                                 f"{first_row + i + 1} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
+        step = float(np.median(dt))
+        if abs(step / period - 1.0) > RATE_TOLERANCE:
+            raise RailwatchError(
+                f"time column {self.layout.time!r} steps by {step:.6g} s ({1 / step:.6g} Hz) but "
+                f"the layout says fs = {self.layout.fs:g} Hz: fix fs in the layout")
+        gaps = dt > GAP_FACTOR * period
+        if gaps.any():
+            i = int(np.argmax(gaps))
+            raise RailwatchError(
+                f"gap in time column {self.layout.time!r}: {dt[i] - period:.6g} s missing after "
+                f"t = {t[i]:.6g} s (row {first_row + i}); split the recording at gaps")
+
+
+def _numeric(name: str, values: Any, start: int) -> NDArray[np.float64]:
+    """A column as float64, or an error naming the first value that is not a number."""
+    arr = np.asarray(values)
+    if arr.dtype.kind in "fiub":
+        return arr.astype(np.float64)
+    import pandas as pd
+
+    converted = pd.to_numeric(pd.Series(arr), errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.isnan(converted) & pd.Series(arr).notna().to_numpy()
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise RailwatchError(f"column {name!r} is not numeric: {str(arr[i])[:30]!r} at row "
+                             f"{start + i + 1}")
+    return converted
+
+
+def _missing(path: Path, wanted: tuple[str, ...], present: list[str], what: str) -> None:
+    missing = [c for c in wanted if c not in present]
+    if missing:
+        shown = ", ".join(present[:12]) + (", ..." if len(present) > 12 else "")
+        raise RailwatchError(f"{path.name} has no {what} {', '.join(map(repr, missing))} named in "
+                             f"the layout; it has: {shown or 'nothing'}")
+
+
+# ----------------------------------------------------------------------------- sources
+class _Source:
+    def __init__(self, path: Path, layout: Layout) -> None:
+        self.path, self.layout = path, layout
+
+    def n_rows(self) -> int:
+        raise NotImplementedError
+
+    def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
+        raise NotImplementedError
+
+
+class _CSV(_Source):
+    def __init__(self, path: Path, layout: Layout) -> None:
+        super().__init__(path, layout)
+        import pandas as pd
+
+        try:
+            header = list(pd.read_csv(path, nrows=0).columns)
+        except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as e:
+            raise RailwatchError(f"cannot read {path} as CSV: {' '.join(str(e).split())[:160]}") \
+                from None
+        _missing(path, layout.columns, [str(c) for c in header], "column")
+
+    def n_rows(self) -> int:
+        with open(self.path, "rb") as fh:
+            lines = sum(block.count(b"\n") for block in iter(lambda: fh.read(1 << 24), b""))
+            fh.seek(-1, os.SEEK_END)
+            unterminated = fh.read(1) != b"\n"
+        return max(lines + unterminated - 1, 0)  # minus the header
+
+    def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
+        import pandas as pd
+
+        start = 0
+        try:
+            reader = pd.read_csv(self.path, usecols=list(self.layout.columns), chunksize=rows)
+            for frame in reader:
+                yield {c: _numeric(c, frame[c].to_numpy(), start) for c in self.layout.columns}
+                start += len(frame)
+        except (ValueError, pd.errors.ParserError) as e:
+            raise RailwatchError(f"cannot read {self.path} as CSV near row {start + 1}: "
+                                 f"{' '.join(str(e).split())[:160]}") from None
+
+
+class _Parquet(_Source):
+    def __init__(self, path: Path, layout: Layout) -> None:
+        super().__init__(path, layout)
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        try:
+            self.file = pq.ParquetFile(path)
+        except (pa.ArrowInvalid, OSError) as e:
+            raise RailwatchError(f"cannot read {path} as Parquet: "
+                                 f"{' '.join(str(e).split())[:160]}") from None
+        names = list(self.file.schema_arrow.names)
+        _missing(path, layout.columns, names, "column")
+        for c in layout.columns:
+            kind = self.file.schema_arrow.field(c).type
+            if not (pa.types.is_integer(kind) or pa.types.is_floating(kind)):
+                raise RailwatchError(f"column {c!r} is not numeric: its Parquet type is {kind}")
+
+    def n_rows(self) -> int:
+        return int(self.file.metadata.num_rows)
+
+    def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
+        for batch in self.file.iter_batches(batch_size=rows, columns=list(self.layout.columns)):
+            yield {c: batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64)
+                   for c in self.layout.columns}
+
+
+class _HDF5(_Source):
+    """Each layout name is a 1-D dataset path; MATLAB v7.3 files come here too."""
+
+    def __init__(self, path: Path, layout: Layout) -> None:
+        super().__init__(path, layout)
+        import h5py
+
+        try:
+            self.file = h5py.File(path, "r")
+        except OSError as e:
+            raise RailwatchError(f"cannot read {path} as HDF5: {' '.join(str(e).split())[:160]}") \
+                from None
+        present: list[str] = []
+        self.file.visititems(lambda name, obj: present.append(name)
+                             if isinstance(obj, h5py.Dataset) else None)
+        _missing(path, tuple(c.strip("/") for c in layout.columns), present, "dataset")
+        self.datasets = {c: self.file[c.strip("/")] for c in layout.columns}
+        lengths = set()
+        for c, ds in self.datasets.items():
+            if ds.dtype.kind not in "fiub":
+                raise RailwatchError(f"dataset {c!r} is not numeric (dtype {ds.dtype})")
+            if sum(n > 1 for n in ds.shape) > 1:
+                raise RailwatchError(f"dataset {c!r} has shape {ds.shape}: each name in the "
+                                     "layout must be one 1-D column")
+            lengths.add(int(np.prod(ds.shape)))
+        if len(lengths) > 1:
+            raise RailwatchError(f"the layout's datasets in {path.name} differ in length: "
+                                 f"{sorted(lengths)}")
+        self.length = lengths.pop() if lengths else 0
+
+    def n_rows(self) -> int:
+        return self.length
+
+    def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
+        for start in range(0, self.length, rows):
+            stop = min(start + rows, self.length)
+            out = {}
+            for c, ds in self.datasets.items():
+                if ds.ndim == 1:
+                    block = ds[start:stop]
+                elif ds.shape[0] > 1:  # a column (n, 1)
+                    block = ds[start:stop, 0]
+                else:  # a row (1, n): how MATLAB v7.3 stores a column vector
+                    block = ds[0, start:stop]
+                out[c] = np.asarray(block, dtype=np.float64)
+            yield out
+
+
+class _MAT(_Source):
+    """MATLAB v4-v7.2 through scipy (read whole); v7.3 files are HDF5 and stream."""
+
+    def __init__(self, path: Path, layout: Layout) -> None:
+        super().__init__(path, layout)
+        import scipy.io
+
+        self.hdf5: _HDF5 | None = None
+        try:
+            content = scipy.io.loadmat(path, variable_names=list(layout.columns))
+        except NotImplementedError:  # v7.3: HDF5 inside
+            self.hdf5 = _HDF5(path, layout)
+            return
+        except (ValueError, OSError, TypeError) as e:
+            raise RailwatchError(f"cannot read {path} as a MATLAB file: "
+                                 f"{' '.join(str(e).split())[:160]}") from None
+        _missing(path, layout.columns, [k for k in content if not k.startswith("__")],
+                 "variable")
+        self.columns: dict[str, NDArray[Any]] = {}
+        for c in layout.columns:
+            arr = np.asarray(content[c])
+            if arr.dtype.kind not in "fiub":
+                raise RailwatchError(f"variable {c!r} is not numeric (MATLAB class "
+                                     f"{arr.dtype})")
+            if sum(n > 1 for n in arr.shape) > 1:
+                raise RailwatchError(f"variable {c!r} has shape {arr.shape}: each name in the "
+                                     "layout must be one vector")
+            self.columns[c] = arr.reshape(-1).astype(np.float64)
+        lengths = {len(v) for v in self.columns.values()}
+        if len(lengths) > 1:
+            raise RailwatchError(f"the layout's variables in {path.name} differ in length: "
+                                 f"{sorted(lengths)}")
+
+    def n_rows(self) -> int:
+        if self.hdf5 is not None:
+            return self.hdf5.n_rows()
+        return len(next(iter(self.columns.values())))
+
+    def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
+        if self.hdf5 is not None:
+            yield from self.hdf5.blocks(rows)
+            return
+        for start in range(0, self.n_rows(), rows):
+            yield {c: v[start:start + rows] for c, v in self.columns.items()}
+
+
+_SOURCES: dict[str, type[_Source]] = {"csv": _CSV, "parquet": _Parquet, "hdf5": _HDF5,
+                                      "mat": _MAT}
+
+
+# ----------------------------------------------------------------------------- writers
+def write_recording(path: str | os.PathLike[str], columns: dict[str, NDArray[Any]]) -> Path:
+    """Write equal-length 1-D columns in the format of ``path``'s extension (atomically).
+
+    The inverse of the readers, used to write synthesised test recordings in every format.
+    """
+    from railwatch.atomic import atomic_path
+
+    path = Path(path)
+    kind = FORMATS.get(path.suffix.lower())
+    if kind is None:
+        raise RailwatchError(f"cannot write {path.name}: unknown format {path.suffix}; use one "
+                             f"of {', '.join(sorted(set(FORMATS)))}")
+    with atomic_path(path) as tmp:
+        if kind == "csv":
+            import pandas as pd
+
+            pd.DataFrame(columns).to_csv(tmp, index=False, float_format="%.10g")
+        elif kind == "parquet":
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            pq.write_table(pa.table(columns), tmp)
+        elif kind == "hdf5":
+            import h5py
+
+            with h5py.File(tmp, "w") as f:
+                for name, values in columns.items():
+                    f.create_dataset(name, data=values, chunks=True)
+        else:
+            import scipy.io
+
+            scipy.io.savemat(tmp, {k: np.asarray(v).reshape(-1, 1) for k, v in columns.items()})
+    return path

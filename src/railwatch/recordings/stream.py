@@ -1,0 +1,254 @@
+"""Streaming detection: raw samples in, events out, with bounded memory and latency.
+
+:class:`StreamingDetector` takes blocks of raw samples as they arrive (any sizes), resamples them
+(:class:`~railwatch.recordings.prepare.Decimator`), scores every complete window (``window``
+samples every ``hop``), merges the windows' per-step scores into one score per sample (the maximum
+over the windows that cover it, so a sample's score exceeds the instance threshold exactly when
+some window containing it would be flagged), and turns runs of samples above the detector's fitted
+threshold into :class:`Event` objects. ``railwatch detect`` is this class fed one file block by
+block, so batch and streaming detection give the same events by construction (a test feeds random
+block sizes).
+
+Latency: a sample's score is final once no later window can cover it, i.e. one window (plus up to
+one hop) after it arrives; an event is emitted when ``merge_gap_s`` of quiet samples have followed
+it; the resampling filter adds its delay (10 input periods per decimation step: 0.1 s at
+2000 -> 100 Hz). With the defaults (2-s windows, 0.5-s hop, 0.5-s merge gap) an event leaves at
+most about 3.1 s of recording after the defect.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railwatch.detectors.base import Detector
+from railwatch.errors import RailwatchError
+from railwatch.recordings.layout import Layout
+from railwatch.recordings.prepare import Decimator, Preparation
+from railwatch.recordings.readers import Chunk
+
+
+@dataclass(frozen=True)
+class Event:
+    """One detected defect candidate."""
+
+    start_s: float  # time of the first sample above the threshold
+    end_s: float  # time just after the last sample above the threshold
+    peak_s: float  # time of the highest score
+    channel: str  # the channel with the highest score at the peak
+    group: str  # its sensor group
+    score: float  # the peak score
+    threshold: float
+    position_m: float | None = None  # track position at the peak (position or integrated speed)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int) -> None:
+    """In place: ``acc[s − offset + j] = max(acc[...], values[w, j])`` for window w at start s.
+
+    ``acc`` holds per-sample scores (n, ...) from sample ``offset``; ``values`` (K, T, ...) the
+    windows' per-step scores.
+
+    >>> acc = np.full(6, -np.inf)
+    >>> merge_max(acc, np.array([[1.0, 5.0, 1.0], [2.0, 2.0, 2.0]]), np.array([0, 2]), 0)
+    >>> acc.tolist()
+    [1.0, 5.0, 2.0, 2.0, 2.0, -inf]
+    """
+    n_steps = values.shape[1]
+    idx = (np.asarray(starts)[:, None] - offset + np.arange(n_steps)).ravel()  # (K·T,)
+    np.maximum.at(acc, idx, values.reshape(len(idx), *values.shape[2:]))
+
+
+class EventTracker:
+    """Runs of final per-sample scores above the threshold -> events (runs closer than
+    ``merge_gap`` samples are one event)."""
+
+    def __init__(self, threshold: float, merge_gap: int, channels: tuple[str, ...],
+                 groups: tuple[str, ...]) -> None:
+        self.threshold, self.merge_gap = threshold, merge_gap
+        self.channels, self.groups = channels, groups
+        self.open: dict[str, Any] | None = None  # the event being built
+        self.quiet = 0  # samples below the threshold since the open event's last exceedance
+
+    def feed(self, point: NDArray[Any], channel: NDArray[Any], time: NDArray[Any],
+             position: NDArray[Any] | None, period: float) -> list[Event]:
+        """Consume final per-sample scores (in order); return the events that ended."""
+        done: list[Event] = []
+        prev: int = -1  # last hit in this block
+        for i in np.flatnonzero(point > self.threshold):
+            quiet_before = i - prev - 1 if prev >= 0 else self.quiet + i
+            if self.open is not None and quiet_before >= self.merge_gap:
+                done.append(self._close())
+            if self.open is None:
+                self.open = {"start": time[i], "score": -np.inf}
+            ev = self.open
+            ev["end"] = time[i] + period
+            if point[i] > ev["score"]:
+                ev.update(score=float(point[i]), peak=float(time[i]),
+                          channel=int(np.argmax(channel[i])),
+                          position=None if position is None else float(position[i]))
+            prev = int(i)
+        if self.open is not None:
+            self.quiet = len(point) - 1 - prev if prev >= 0 else self.quiet + len(point)
+            if self.quiet >= self.merge_gap:
+                done.append(self._close())
+        return done
+
+    def close(self) -> list[Event]:
+        return [self._close()] if self.open is not None else []
+
+    def _close(self) -> Event:
+        ev, self.open, self.quiet = self.open, None, 0
+        assert ev is not None
+        c = ev["channel"]
+        return Event(start_s=float(ev["start"]), end_s=float(ev["end"]), peak_s=ev["peak"],
+                     channel=self.channels[c], group=self.groups[c], score=ev["score"],
+                     threshold=self.threshold, position_m=ev["position"])
+
+
+class StreamingDetector:
+    """Score a recording block by block; see the module docstring.
+
+    ``on_samples(time, point, channel, position)``, if given, receives every finalised stretch
+    of per-sample scores (for a score trace or a plot; position is NaN when unknown).
+    """
+
+    def __init__(self, detector: Detector, layout: Layout, preparation: Preparation,
+                 threshold: float | None = None, merge_gap_s: float = 0.5,
+                 on_samples: Callable[[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]],
+                                      None] | None = None) -> None:
+        n_channels = len(layout.channels)
+        if n_channels != detector.n_channels_:
+            raise RailwatchError(
+                f"the layout names {n_channels} channels but the model was trained on "
+                f"{detector.n_channels_}: use the layout the model was trained with")
+        self.detector, self.layout, self.prep = detector, layout, preparation
+        self.q = preparation.factor(layout.fs)
+        self.fs = layout.fs / self.q
+        self.window = preparation.samples(preparation.window_s, layout.fs, "the window")
+        if self.window != detector.n_steps_:
+            raise RailwatchError(
+                f"windows of {preparation.window_s:g} s at {self.fs:g} Hz are {self.window} "
+                f"samples, but the model takes {detector.n_steps_}")
+        self.hop = preparation.samples(preparation.detect_hop_s, layout.fs, "the hop")
+        if self.hop > self.window:
+            raise RailwatchError(f"a hop of {preparation.detect_hop_s:g} s is longer than the "
+                                 f"{preparation.window_s:g}-s window: samples would go unscored")
+        self.threshold = float(detector.threshold_ if threshold is None else threshold)
+        self.tracker = EventTracker(self.threshold, max(1, round(merge_gap_s * self.fs)),
+                                    layout.channels, layout.groups)
+        self.on_samples = on_samples
+        self.decimator = Decimator(self.q, n_channels)
+        self.n_in = 0  # raw samples received
+        self.distance = 0.0  # integrated speed (m) up to raw sample n_in
+        self.t0: float | None = None  # time of raw sample 0 (time column), else 0
+        self.samples = np.zeros((0, n_channels), np.float32)  # resampled, from buf_start
+        self.aux = np.zeros((0, 2))  # time, position of each resampled sample
+        self.pending_aux: list[NDArray[Any]] = []  # aux of outputs not yet out of the filter
+        self.buf_start = 0  # output index of samples[0]
+        self.next_window = 0  # output index of the next window's start
+        self.final = 0  # outputs before this index are final
+        self.point = np.zeros(0)  # merged scores of outputs final .. buf end
+        self.channel = np.zeros((0, n_channels))
+        self.closed = False
+
+    # -- public ------------------------------------------------------------------------------
+    def push(self, chunk: Chunk | NDArray[Any]) -> list[Event]:
+        """Feed raw samples (a :class:`Chunk`, or an (n, C) array); returns finished events."""
+        if self.closed:
+            raise RailwatchError("this stream is closed: start a new StreamingDetector")
+        if not isinstance(chunk, Chunk):
+            chunk = Chunk(self.n_in, np.asarray(chunk, dtype=np.float32))
+        data = chunk.data
+        if data.ndim != 2 or data.shape[1] != len(self.layout.channels):
+            raise RailwatchError(f"expected samples of shape (n, {len(self.layout.channels)}), "
+                                 f"got {data.shape}")
+        if not np.isfinite(data).all():
+            raise RailwatchError(f"non-finite sample in the block starting at sample {self.n_in}")
+        self._collect_aux(chunk)
+        return self._advance(self.decimator.push(data), end=False)
+
+    def close(self) -> list[Event]:
+        """End of the recording: score the tail and return the last events."""
+        if self.closed:
+            return []
+        events = self._advance(self.decimator.flush(), end=True)
+        self.closed = True
+        return events + self.tracker.close()
+
+    # -- internals ---------------------------------------------------------------------------
+    def _collect_aux(self, chunk: Chunk) -> None:
+        """Time and position at the raw samples that become outputs (indices k·q)."""
+        n = len(chunk.data)
+        idx = np.arange(self.n_in, self.n_in + n)
+        pick = idx % self.q == 0
+        if chunk.time is not None:
+            if self.t0 is None:
+                self.t0 = float(chunk.time[0]) - self.n_in / self.layout.fs
+            t = chunk.time[pick]
+        else:
+            t = idx[pick] / self.layout.fs + (self.t0 or 0.0)
+        if chunk.position is not None:
+            pos = chunk.position[pick]
+        elif chunk.speed is not None:
+            travelled = self.distance + np.cumsum(chunk.speed) / self.layout.fs
+            pos = np.concatenate([[self.distance], travelled])[:-1][pick]  # at each sample
+            self.distance = float(travelled[-1])
+        else:
+            pos = np.full(int(pick.sum()), np.nan)
+        self.pending_aux.append(np.stack([t, pos], axis=1))
+        self.n_in += n
+
+    def _advance(self, out: NDArray[np.float32], end: bool) -> list[Event]:
+        if len(out):
+            aux = np.concatenate(self.pending_aux) if self.pending_aux else np.zeros((0, 2))
+            self.aux = np.concatenate([self.aux, aux[:len(out)]])
+            self.pending_aux = [aux[len(out):]]
+            self.samples = np.concatenate([self.samples, out])
+            self.point = np.concatenate([self.point, np.full(len(out), -np.inf)])
+            self.channel = np.concatenate([self.channel,
+                                           np.full((len(out), self.channel.shape[1]), -np.inf)])
+        n_out = self.buf_start + len(self.samples)
+        starts = list(range(self.next_window, n_out - self.window + 1, self.hop))
+        if end:  # as frame(cover_end=True): a last window ending at the last sample
+            if n_out < self.window:
+                raise RailwatchError(f"the recording is shorter than one window "
+                                     f"({n_out} < {self.window} samples at {self.fs:g} Hz)")
+            last_regular = starts[-1] if starts else self.next_window - self.hop
+            if last_regular + self.window < n_out:
+                starts.append(n_out - self.window)
+        if starts:
+            idx = np.asarray(starts) - self.buf_start
+            views = np.lib.stride_tricks.sliding_window_view(self.samples, self.window, axis=0)
+            windows = np.ascontiguousarray(views[idx].transpose(0, 2, 1))
+            scores = self.detector.score(windows)
+            merge_max(self.point, scores.point, np.asarray(starts), self.final)
+            merge_max(self.channel, scores.channel, np.asarray(starts), self.final)
+            self.next_window = starts[-1] + self.hop
+        # Final: no later window covers it. Regular windows start at next_window or later; the
+        # tail window (added at the end) starts at n_total − window ≥ n_out − window.
+        final_to = n_out if end else min(self.next_window, n_out - self.window)
+        return self._finalise(final_to)
+
+    def _finalise(self, upto: int) -> list[Event]:
+        k = upto - self.final
+        if k <= 0:
+            return []
+        point, channel = self.point[:k], self.channel[:k]
+        aux = self.aux[self.final - self.buf_start:upto - self.buf_start]
+        position = None if np.isnan(aux[:, 1]).all() else aux[:, 1]
+        if self.on_samples is not None:
+            self.on_samples(aux[:, 0], point, channel, aux[:, 1])
+        events = self.tracker.feed(point, channel, aux[:, 0], position, 1.0 / self.fs)
+        self.point, self.channel = self.point[k:], self.channel[k:]
+        self.final = upto
+        keep = min(self.final, self.next_window) - self.buf_start  # needed by later windows
+        self.samples, self.aux = self.samples[keep:], self.aux[keep:]
+        self.buf_start += keep
+        return events

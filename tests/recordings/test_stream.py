@@ -1,0 +1,126 @@
+"""Window -> timeline merging, events, and the streaming scorer against batch computation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from railwatch.detectors import create
+from railwatch.errors import RailwatchError
+from railwatch.recordings.layout import Layout
+from railwatch.recordings.prepare import Preparation, decimate, frame
+from railwatch.recordings.stream import EventTracker, StreamingDetector, merge_max
+
+
+@given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 2**31))
+def test_merge_max_equals_a_loop(n_windows: int, width: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    starts = np.sort(rng.integers(0, 40, n_windows))
+    values = rng.normal(size=(n_windows, width, 2))
+    acc = np.full((40 + width, 2), -np.inf)
+    merge_max(acc, values, starts, 0)
+    brute = np.full((40 + width, 2), -np.inf)
+    for s, v in zip(starts, values, strict=True):
+        for j in range(width):
+            brute[s + j] = np.maximum(brute[s + j], v[j])
+    np.testing.assert_array_equal(acc, brute)
+
+
+@settings(max_examples=40)
+@given(st.lists(st.integers(1, 50), min_size=1, max_size=12), st.integers(0, 2**31),
+       st.integers(1, 8))
+def test_events_do_not_depend_on_block_sizes(sizes: list[int], seed: int, gap: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = sum(sizes)
+    point = np.where(rng.random(n) < 0.15, 3.0 + rng.random(n), rng.random(n))
+    channel = rng.random((n, 3))
+    time = np.arange(n) / 10.0
+
+    def run(blocks: list[int]) -> list:  # type: ignore[type-arg]
+        tracker = EventTracker(2.0, gap, ("a", "b", "c"), ("g", "g", "h"))
+        events, i = [], 0
+        for b in blocks:
+            events += tracker.feed(point[i:i + b], channel[i:i + b], time[i:i + b], None, 0.1)
+            i += b
+        return events + tracker.close()
+
+    one = run([n])
+    assert run(sizes) == one
+    # Brute force: maximal runs above the threshold, merged across fewer than `gap` quiet samples.
+    hits = np.flatnonzero(point > 2.0)
+    groups = np.split(hits, np.flatnonzero(np.diff(hits) - 1 >= gap) + 1) if len(hits) else []
+    assert [(e.start_s, e.end_s) for e in one] == [
+        (time[g[0]], time[g[-1]] + 0.1) for g in groups]
+    for e, g in zip(one, groups, strict=True):
+        peak = g[np.argmax(point[g])]
+        assert e.peak_s == time[peak] and e.channel == "abc"[int(np.argmax(channel[peak]))]
+
+
+@pytest.fixture(scope="module")
+def tiny() -> tuple[object, Layout, Preparation, np.ndarray]:
+    """A tiny CNN autoencoder on 50-sample windows at 100 Hz (recorded at 200 Hz)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(6000) / 200.0
+    raw = np.stack([np.sin(2 * np.pi * 3 * t), np.cos(2 * np.pi * 1 * t)], 1)
+    raw = raw + 0.1 * rng.normal(size=raw.shape)
+    raw[1500:1504, 0] += 4.0
+    raw[4000:4030, 1] -= 2.0
+    layout = Layout(fs=200.0, channels=("x", "y"), groups=("axle", "body"))
+    prep = Preparation(rate=100.0, window_s=0.5, train_hop_s=0.25, detect_hop_s=0.2)
+    windows, _ = frame(decimate(raw, 2), 50, 25)
+    det = create("cnn-ae", {"epochs": 2, "widths": (4, 4), "progress": False}).fit(windows)
+    return det, layout, prep, raw.astype(np.float32)
+
+
+def test_streaming_equals_brute_force_batch(tiny) -> None:  # type: ignore[no-untyped-def]
+    det, layout, prep, raw = tiny
+    rng = np.random.default_rng(3)
+    traces: list[np.ndarray] = []
+    stream = StreamingDetector(det, layout, prep, threshold=float(det.threshold_) * 0.5,
+                               on_samples=lambda t, p, c, pos: traces.append(np.c_[t, p]))
+    events, i = [], 0
+    while i < len(raw):
+        n = int(rng.integers(1, 300))
+        events += stream.push(raw[i:i + n])
+        i += n
+    events += stream.close()
+    got = np.concatenate(traces)
+
+    # Batch: resample everything, frame (every 20 samples, tail covered), merge by a loop.
+    signal = decimate(raw, 2)
+    windows, starts = frame(signal, 50, 20)
+    scores = det.score(windows).point  # type: ignore[attr-defined]
+    brute = np.full(len(signal), -np.inf)
+    for s, p in zip(starts, scores, strict=True):
+        for j in range(50):
+            brute[s + j] = max(brute[s + j], p[j])
+    np.testing.assert_allclose(got[:, 0], np.arange(len(signal)) / 100.0)
+    np.testing.assert_allclose(got[:, 1], brute, rtol=1e-5, atol=1e-5)
+
+    again = StreamingDetector(det, layout, prep, threshold=float(det.threshold_) * 0.5)
+    assert [e.peak_s for e in again.push(raw) + again.close()] == [e.peak_s for e in events]
+    assert any(abs(e.peak_s - 7.5) < 0.1 and e.channel == "x" for e in events)  # the spike
+
+
+def test_stream_errors(tiny) -> None:  # type: ignore[no-untyped-def]
+    det, layout, prep, raw = tiny
+    with pytest.raises(RailwatchError, match="names 3 channels but the model was trained on 2"):
+        StreamingDetector(det, Layout(fs=200.0, channels=("a", "b", "c"), groups=("g",) * 3),
+                          prep)
+    with pytest.raises(RailwatchError, match="model takes 50"):
+        StreamingDetector(det, layout, Preparation(rate=100.0, window_s=1.0))
+    with pytest.raises(RailwatchError, match="longer than the"):
+        StreamingDetector(det, layout, Preparation(rate=100.0, window_s=0.5, detect_hop_s=1.0))
+    stream = StreamingDetector(det, layout, prep)
+    with pytest.raises(RailwatchError, match=r"shape \(n, 2\)"):
+        stream.push(raw[:10, :1])
+    bad = raw[:10].copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(RailwatchError, match="non-finite"):
+        stream.push(bad)
+    short = StreamingDetector(det, layout, prep)
+    short.push(raw[:20])
+    with pytest.raises(RailwatchError, match="shorter than one window"):
+        short.close()
