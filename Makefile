@@ -7,7 +7,8 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test lint bench-generate bench-detectors bench-standard screenshot clean
+.PHONY: run data test lint bench-generate bench-detectors bench-recordings bench-standard \
+	screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
 	$(BIN)/railwatch bench --preset quick --out $(OUT)
@@ -33,6 +34,9 @@ bench-generate: $(STAMP)  ## time `railwatch generate` for every stage at n = 10
 
 bench-detectors: $(STAMP)  ## stage-1 AUC, fit and scoring time of every detector
 	$(BIN)/python benchmarks/detectors.py
+
+bench-recordings: $(STAMP)  ## detection quality, real-time factor and onboard latency on recordings
+	$(BIN)/python benchmarks/recordings.py --work runs/recordings
 
 bench-standard: $(STAMP)  ## the standard benchmark (3 seeds, 3,000 test windows; ~1 h on 2 cores)
 	$(BIN)/railwatch bench --preset standard --out runs/standard

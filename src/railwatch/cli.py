@@ -301,8 +301,9 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
         raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
                              "see 'railwatch train --help')")
     layout = load_layout(layout_file)
-    prep = Preparation(rate=_rate(resample), window_s=window_s, train_hop_s=hop_s)
-    prep.factor(layout.fs)  # fail now on an impossible rate
+    prep = Preparation(rate=_rate(resample), window_s=window_s, train_hop_s=hop_s,
+                       detect_hop_s=min(Preparation.detect_hop_s, window_s))
+    prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
     total = sum(Recording(p, layout).duration_s for p in paths)
     with _progress_seconds(total, "reading") as bar:
         X = training_windows(paths, layout, prep,
@@ -380,11 +381,14 @@ def _truth_times(path: Path) -> list[float]:
     if not path.is_file():
         raise RailwatchError(f"no such file: {path}")
     with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    key = next((k for k in ("center_s", "time_s") if rows and k in rows[0]), None)
-    if key is None:
-        raise RailwatchError(f"{path} needs a 'center_s' or 'time_s' column of defect times")
-    return [float(r[key]) for r in rows]
+        reader = csv.DictReader(fh)
+        key = next((k for k in ("center_s", "time_s") if k in (reader.fieldnames or [])), None)
+        if key is None:
+            raise RailwatchError(f"{path} needs a 'center_s' or 'time_s' column of defect times")
+        try:
+            return [float(r[key]) for r in reader]
+        except (TypeError, ValueError):
+            raise RailwatchError(f"{path}: column {key} must hold numbers of seconds") from None
 
 
 @cli.command()
@@ -441,12 +445,14 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
     from railwatch.atomic import atomic_path
     from railwatch.recordings.layout import layout_toml
     from railwatch.recordings.readers import FORMATS, write_recording
-    from railwatch.synthetic.runs import Run, synthesize_run
+    from railwatch.synthetic.runs import DEFECT_FIELDS, Run, synthesize_run
 
     if out.suffix.lower() not in FORMATS:
         raise RailwatchError(f"--out {out.name}: use .csv, .parquet, .h5 or .mat")
-    if minutes <= 0 or every_s <= 0 or fs <= 0:
-        raise RailwatchError("--minutes, --defect-every and --fs must be positive")
+    if minutes <= 0 or every_s <= 0:
+        raise RailwatchError("--minutes and --defect-every must be positive")
+    if fs < 100:
+        raise RailwatchError(f"--fs must be at least 100 Hz (a spike lasts 0.01 s), got {fs:g}")
     writable_file(out)
     run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s)
     stem = out.with_suffix("")
@@ -454,8 +460,7 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
     with atomic_path(layout_path) as tmp:
         tmp.write_text(layout_toml(Run.layout(fs)))
     with atomic_path(truth_path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(run.defects[0]) if run.defects else
-                                ["time_s"], lineterminator="\n")
+        writer = csv.DictWriter(fh, fieldnames=DEFECT_FIELDS, lineterminator="\n")
         writer.writeheader()
         writer.writerows(run.defects)
     write_recording(out, run.columns())

@@ -96,6 +96,9 @@ def test_recordings_cli_errors(runs: Path, tmp_path: Path, capsys) -> None:  # t
         (["detect", "--model", str(tmp_path), "--recording", rec, "--out",
           str(tmp_path / "e.txt")], "write events to a .csv or .json"),
         (["generate-run", "--out", str(tmp_path / "r.xlsx")], "use .csv, .parquet"),
+        (["generate-run", "--fs", "50", "--out", str(tmp_path / "r.csv")], "at least 100 Hz"),
+        (["train", "--detector", "cnn-ae", "--recordings", rec, "--layout", layout,
+          "--window", "0.012", "--out", str(tmp_path / "m")], "under two samples"),
     ]
     for args, message in cases:
         assert main(args) != 0, args
@@ -113,3 +116,19 @@ def test_detect_needs_a_recordings_model(runs: Path, tmp_path: Path, capsys) -> 
                  str(runs / "test.parquet"), "--out", str(tmp_path / "e.csv")]) == 1
     assert "trained on windows, not recordings" in capsys.readouterr().err
     assert not (tmp_path / "e.csv").exists()
+
+
+def test_short_window_and_a_run_without_defects(runs: Path, tmp_path: Path) -> None:
+    assert main(["-q", "generate-run", "--minutes", "0.05", "--defect-every", "1000",
+                 "--out", str(tmp_path / "calm.parquet")]) == 0
+    assert (tmp_path / "calm.defects.csv").read_text().startswith("time_s,duration_s,center_s")
+    model = tmp_path / "m"
+    assert main(["-q", "train", "--detector", "cnn-ae", "--recordings",
+                 str(runs / "train1.parquet"), "--layout", str(runs / "train1.layout.toml"),
+                 "--window", "0.4", "--set", "epochs=1", "--out", str(model)]) == 0
+    assert json.loads((model / "recording.json").read_text())["preparation"][
+        "detect_hop_s"] == 0.4  # never longer than the window
+    assert main(["-q", "detect", "--model", str(model), "--recording",
+                 str(tmp_path / "calm.parquet"), "--out", str(tmp_path / "e.json"), "--plot",
+                 str(tmp_path / "e.png"), "--truth", str(tmp_path / "calm.defects.csv")]) == 0
+    assert isinstance(json.loads((tmp_path / "e.json").read_text()), list)

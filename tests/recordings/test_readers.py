@@ -153,3 +153,34 @@ def test_layout_files_and_errors(tmp_path: Path) -> None:
         load_layout(tmp_path / "bad.toml")
     with pytest.raises(RailwatchError, match="no such layout file"):
         load_layout(tmp_path / "none.toml")
+
+
+def test_errors_name_the_file_and_short_blocks_do_not_fake_a_rate(tmp_path: Path) -> None:
+    cols = columns(250)
+    cols["t"][-1] += 0.3 / FS  # a late last sample, alone in its block: jitter, not a rate
+    rec = Recording(write_recording(tmp_path / "late.parquet", cols), LAYOUT)
+    assert len(rec.read()) == 250
+    assert sum(len(b) for b in rec.chunks(rows=249)) == 250
+    cols = columns(50)
+    cols["a"][3] = np.inf
+    with pytest.raises(RailwatchError, match=r"^inf.h5: column 'a' is infinite at row 4"):
+        Recording(write_recording(tmp_path / "inf.h5", cols), LAYOUT).read()
+
+
+def test_odd_hdf5_and_mat_files(tmp_path: Path) -> None:
+    import h5py
+
+    with h5py.File(tmp_path / "scalar.h5", "w") as f:
+        f["a"] = 1.0
+        f["b"] = f["t"] = f["v"] = np.zeros(10)
+    with pytest.raises(RailwatchError, match=r"'a' has shape \(\)"):
+        Recording(tmp_path / "scalar.h5", LAYOUT)
+    with h5py.File(tmp_path / "3d.h5", "w") as f:
+        f["a"] = np.zeros((10, 1, 1))
+        f["b"] = f["t"] = f["v"] = np.zeros(10)
+    with pytest.raises(RailwatchError, match="'a' has shape"):
+        Recording(tmp_path / "3d.h5", LAYOUT)
+    good = write_recording(tmp_path / "good.mat", columns(20))
+    (tmp_path / "cut.mat").write_bytes(good.read_bytes()[:200])
+    with pytest.raises(RailwatchError, match="cannot read .* as a MATLAB file"):
+        Recording(tmp_path / "cut.mat", LAYOUT)

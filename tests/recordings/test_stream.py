@@ -124,3 +124,6 @@ def test_stream_errors(tiny) -> None:  # type: ignore[no-untyped-def]
     short.push(raw[:20])
     with pytest.raises(RailwatchError, match="shorter than one window"):
         short.close()
+    assert short.close() == []  # closed: the padded tail is not scored again
+    with pytest.raises(RailwatchError, match="closed"):
+        short.push(raw[:20])

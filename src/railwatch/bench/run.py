@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import platform
+import shutil
 import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
@@ -122,9 +123,10 @@ def fit_or_reuse(
 
     Detectors of one class whose configs differ only in scoring-only fields (the attention
     model's ``attention``, ``reconstruction`` and ``combined`` rows) share one trained model,
-    kept under ``cache/models/``; the reusing cell refits only its threshold. Returns the
-    detector, the fit seconds (the shared training's plus the refit) and the registry name of
-    the cell that trained the network.
+    kept under ``cache/models/``; the reusing cell refits only its threshold. Cells running at
+    the same time (Ray) may each train it (identically: same seed) before one has saved it.
+    Returns the detector, the fit seconds (the shared training's plus the refit) and the
+    registry name of the cell that trained the network.
     """
     from railwatch.detectors.base import load_detector
 
@@ -144,10 +146,16 @@ def fit_or_reuse(
     started = time.perf_counter()
     det.fit(X, context)
     fit_s = time.perf_counter() - started
+    # Saved under a private name, then renamed: parallel cells (Ray) that trained the same model
+    # do not write into one folder; the first rename wins, the others are dropped.
     folder.parent.mkdir(parents=True, exist_ok=True)
-    det.save(folder)
-    with atomic_path(info_path) as tmp:
-        tmp.write_text(json.dumps({"fit_s": fit_s, "detector": cell.detector}))
+    private = folder.with_name(f".{folder.name}.{os.getpid()}-{time.monotonic_ns()}")
+    det.save(private, extra_files={"fit.json": json.dumps({"fit_s": fit_s,
+                                                           "detector": cell.detector})})
+    try:
+        os.rename(private, folder)
+    except OSError:  # another cell saved it first
+        shutil.rmtree(private, ignore_errors=True)
     return det, fit_s, cell.detector
 
 

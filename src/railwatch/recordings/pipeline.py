@@ -114,19 +114,23 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
         from railwatch.deploy.onnx import load_onnx, read_metadata
 
         detector = load_onnx(model)
-        info = read_metadata(model).get("recording")
+        info, source = read_metadata(model).get("recording"), f"the metadata of {model}"
     else:
         detector = load_detector(model)
-        info = json.loads(path.read_text()) if path.is_file() else None
+        source = str(path)
+        try:
+            info = json.loads(path.read_text()) if path.is_file() else None
+        except (OSError, ValueError) as e:
+            raise RailwatchError(f"{path} is damaged ({e}): train the model again") from None
     if info is None:
         raise RailwatchError(
             f"{model} was trained on windows, not recordings (no {RECORDING_FILE}): train it with "
             "'railwatch train --recordings FILE... --layout LAYOUT'")
     try:
-        return RecordingModel(detector, Layout.from_dict(info["layout"], str(path)),
+        return RecordingModel(detector, Layout.from_dict(info["layout"], source),
                               Preparation(**info["preparation"]), float(info["threshold"]))
     except (KeyError, TypeError, ValueError) as e:
-        raise RailwatchError(f"{path} is damaged ({e}): train the model again") from None
+        raise RailwatchError(f"{source} is damaged ({e}): train the model again") from None
 
 
 # ----------------------------------------------------------------------------- detection

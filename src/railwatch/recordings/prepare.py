@@ -46,10 +46,23 @@ class Preparation:
                 f"integer multiple of the target; choose a rate that divides {fs:g} Hz, or none")
         return int(round(q))
 
+    def check(self, fs: float) -> None:
+        """Every setting usable for a recording at ``fs``: one-line errors now, not later."""
+        self.factor(fs)
+        window = self.samples(self.window_s, fs, "the window")
+        self.samples(self.train_hop_s, fs, "the training hop")
+        hop = self.samples(self.detect_hop_s, fs, "the detection hop")
+        if window < 2:
+            raise RailwatchError(f"a window of {self.window_s:g} s is under two samples")
+        if hop > window:
+            raise RailwatchError(f"a detection hop of {self.detect_hop_s:g} s is longer than the "
+                                 f"{self.window_s:g}-s window: samples would go unscored")
+
     def samples(self, seconds: float, fs: float, what: str) -> int:
         n = int(round(seconds * self.output_rate(fs)))
         if n < 1:
-            raise RailwatchError(f"{what} of {seconds:g} s is shorter than one sample")
+            raise RailwatchError(f"{what} of {seconds:g} s is shorter than one sample at "
+                                 f"{self.output_rate(fs):g} Hz")
         return n
 
     def to_dict(self) -> dict[str, Any]:
@@ -79,8 +92,11 @@ class Decimator:
         self.buffer_start = 0  # input index of buffer[0] (negative while the start is padded)
         self.next_out = 0  # index of the next output sample
         self.started = False
+        self.flushed = False
 
     def push(self, block: NDArray[Any]) -> NDArray[np.float32]:
+        if self.flushed:
+            raise RailwatchError("this resampler was flushed: start a new one")
         x = np.asarray(block, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != self.n_channels:
             raise RailwatchError(f"expected blocks of shape (n, {self.n_channels}), got {x.shape}")
@@ -93,9 +109,12 @@ class Decimator:
         return self._emit()
 
     def flush(self) -> NDArray[np.float32]:
-        """The remaining outputs, the last sample extended forwards."""
-        if self.q == 1 or not self.started:
+        """The remaining outputs, the last sample extended forwards (once: later calls give
+        nothing)."""
+        if self.q == 1 or not self.started or self.flushed:
+            self.flushed = True
             return np.zeros((0, self.n_channels), np.float32)
+        self.flushed = True
         n_in = self.buffer_start + len(self.buffer)  # input samples seen
         n_out = -(-n_in // self.q)
         need = (n_out - 1) * self.q + self.delay + 1 - n_in  # samples missing for the last one

@@ -71,11 +71,15 @@ class Recording:
         """Blocks of at most ``rows`` rows, checked, in order."""
         checker = _TimeChecker(self.layout)
         start = 0
-        for columns in self._source.blocks(rows):
-            chunk = _make_chunk(columns, self.layout, start)
-            checker.check(chunk)
-            start += len(chunk)
-            yield chunk
+        try:
+            for columns in self._source.blocks(rows):
+                chunk = _make_chunk(columns, self.layout, start)
+                checker.check(chunk)
+                start += len(chunk)
+                yield chunk
+            checker.finish()
+        except RailwatchError as e:
+            raise RailwatchError(f"{self.path.name}: {e}") from None
 
     def read(self) -> Chunk:
         """The whole recording as one chunk."""
@@ -114,9 +118,14 @@ def _make_chunk(columns: dict[str, NDArray[Any]], layout: Layout, start: int) ->
 class _TimeChecker:
     """Increasing time at the layout's rate, no gaps, across block boundaries."""
 
+    #: Steps collected before the rate is checked (a short last block says little).
+    RATE_STEPS = 100
+
     def __init__(self, layout: Layout) -> None:
         self.layout = layout
         self.last: float | None = None
+        self.steps: list[float] = []  # the first RATE_STEPS steps, for the rate check
+        self.rate_checked = False
 
     def check(self, chunk: Chunk) -> None:
         if chunk.time is None or len(chunk) == 0:
@@ -133,17 +142,28 @@ class _TimeChecker:
             i = int(np.argmax(back))
             raise RailwatchError(f"time column {self.layout.time!r} does not increase at row "
                                  f"{first_row + i + 1} (t = {t[i + 1]:.6g} s after {t[i]:.6g} s)")
-        step = float(np.median(dt))
-        if abs(step / period - 1.0) > RATE_TOLERANCE:
-            raise RailwatchError(
-                f"time column {self.layout.time!r} steps by {step:.6g} s ({1 / step:.6g} Hz) but "
-                f"the layout says fs = {self.layout.fs:g} Hz: fix fs in the layout")
+        if not self.rate_checked:
+            self.steps += dt[:self.RATE_STEPS - len(self.steps)].tolist()
+            if len(self.steps) >= self.RATE_STEPS:
+                self.finish()
         gaps = dt > GAP_FACTOR * period
         if gaps.any():
             i = int(np.argmax(gaps))
             raise RailwatchError(
                 f"gap in time column {self.layout.time!r}: {dt[i] - period:.6g} s missing after "
                 f"t = {t[i]:.6g} s (row {first_row + i}); split the recording at gaps")
+
+
+    def finish(self) -> None:
+        """Check the rate: the median of the first steps against 1 / fs."""
+        if self.rate_checked or not self.steps:
+            return
+        self.rate_checked = True
+        step = float(np.median(self.steps))
+        if abs(step * self.layout.fs - 1.0) > RATE_TOLERANCE:
+            raise RailwatchError(
+                f"time column {self.layout.time!r} steps by {step:.6g} s ({1 / step:.6g} Hz) but "
+                f"the layout says fs = {self.layout.fs:g} Hz: fix fs in the layout")
 
 
 def _numeric(name: str, values: Any, start: int) -> NDArray[np.float64]:
@@ -263,7 +283,7 @@ class _HDF5(_Source):
         for c, ds in self.datasets.items():
             if ds.dtype.kind not in "fiub":
                 raise RailwatchError(f"dataset {c!r} is not numeric (dtype {ds.dtype})")
-            if sum(n > 1 for n in ds.shape) > 1:
+            if ds.ndim not in (1, 2) or (ds.ndim == 2 and min(ds.shape) != 1):
                 raise RailwatchError(f"dataset {c!r} has shape {ds.shape}: each name in the "
                                      "layout must be one 1-D column")
             lengths.add(int(np.prod(ds.shape)))
@@ -303,7 +323,7 @@ class _MAT(_Source):
         except NotImplementedError:  # v7.3: HDF5 inside
             self.hdf5 = _HDF5(path, layout)
             return
-        except (ValueError, OSError, TypeError) as e:
+        except (ValueError, OSError, TypeError, scipy.io.matlab.MatReadError) as e:
             raise RailwatchError(f"cannot read {path} as a MATLAB file: "
                                  f"{' '.join(str(e).split())[:160]}") from None
         _missing(path, layout.columns, [k for k in content if not k.startswith("__")],

@@ -7,7 +7,7 @@ over the windows that cover it, so a sample's score exceeds the instance thresho
 some window containing it would be flagged), and turns runs of samples above the detector's fitted
 threshold into :class:`Event` objects. ``railwatch detect`` is this class fed one file block by
 block, so batch and streaming detection give the same events by construction (a test feeds random
-block sizes).
+block sizes; the per-sample scores agree to float rounding, as windows may be batched differently).
 
 Latency: a sample's score is final once no later window can cover it, i.e. one window (plus up to
 one hop) after it arrives; an event is emitted when ``merge_gap_s`` of quiet samples have followed
@@ -178,8 +178,8 @@ class StreamingDetector:
         """End of the recording: score the tail and return the last events."""
         if self.closed:
             return []
+        self.closed = True  # even if the tail fails: its padding must not be scored twice
         events = self._advance(self.decimator.flush(), end=True)
-        self.closed = True
         return events + self.tracker.close()
 
     # -- internals ---------------------------------------------------------------------------

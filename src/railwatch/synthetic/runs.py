@@ -27,12 +27,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.synthetic.stages import GROUPS
 
 CHANNELS = ("axle_1", "axle_2", "bogie_1", "bogie_2", "body_1", "body_2")
 CHANNEL_GROUPS = ("axle", "axle", "bogie", "bogie", "body", "body")
 MEAN_SPEED = 22.5  # m/s: speed at which f and A are the drawn values
+
+
+#: Columns of the true-defects table (one row per defect).
+DEFECT_FIELDS = ("time_s", "duration_s", "center_s", "position_m", "channel", "group", "kind",
+                 "offset")
 
 
 @dataclass
@@ -67,6 +73,8 @@ def synthesize_run(
     deviation_offset: tuple[float, float] = (1.5, 2.0),
 ) -> Run:
     """A continuous six-channel run with defects at known times; see the module docstring."""
+    if fs < 100.0:
+        raise RailwatchError(f"a run needs fs >= 100 Hz (a spike lasts 0.01 s), got {fs:g}")
     rng = np.random.default_rng(seed)
     n = int(round(duration_s * fs))
     t = np.arange(n) / fs
@@ -91,7 +99,8 @@ def synthesize_run(
         duration = 0.01 if spike else float(rng.uniform(0.05, 0.2))
         size = rng.uniform(*(spike_offset if spike else deviation_offset))
         offset = float(size * rng.choice([-1.0, 1.0]))
-        i0, i1 = int(round(at * fs)), int(round((at + duration) * fs))
+        i0 = int(round(at * fs))
+        i1 = max(i0 + 1, int(round((at + duration) * fs)))
         data[i0:i1, c] += offset
         defects.append({"time_s": at, "duration_s": duration, "center_s": at + duration / 2,
                         "position_m": float(np.interp(at + duration / 2, t, position)),
@@ -106,7 +115,7 @@ def _noise_levels(rng: np.random.Generator, n: int, fs: float, sigma: tuple[floa
     levels = np.empty(n)
     i = 0
     while i < n:
-        length = int(rng.uniform(0.4, 1.6) * fs)
+        length = max(1, int(rng.uniform(0.4, 1.6) * fs))
         levels[i:i + length] = rng.uniform(*sigma) + (rng.random() < 0.5) * rng.uniform(*d_sigma)
         i += length
     return levels
