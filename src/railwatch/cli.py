@@ -584,9 +584,12 @@ def _int_list(value: str | None, what: str) -> tuple[int, ...] | None:
               show_default=True, help="Run cells in this process, or as Ray tasks.")
 @click.option("--address", help="Ray cluster address (with --executor ray); default: start a "
                                  "local Ray on this machine.")
+@click.option("--retime", is_flag=True,
+              help="Run nothing new: measure the scoring times of the finished cells again from "
+                   "their saved models (after a run on a busy machine), then rewrite the report.")
 @click.pass_obj
 def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names: str | None,
-          seeds: int | None, executor: str, address: str | None) -> None:
+          seeds: int | None, executor: str, address: str | None, retime: bool) -> None:
     """Run the benchmark grid (stages x detectors x seeds); write the paper's tables and a report.
 
     \b
@@ -600,6 +603,8 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
     from railwatch.bench.presets import load_preset
     from railwatch.bench.run import cells, run_grid
 
+    if retime and executor != "local":
+        raise RailwatchError("--retime measures on this machine: leave out --executor")
     if address and executor != "ray":
         raise RailwatchError("--address goes with --executor ray")
     names = tuple(d.strip() for d in detector_names.split(",")) if detector_names else None
@@ -622,7 +627,21 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
             bar.set_postfix_str(f"{cell.key}: AUC {record['auc_instance']:.3f}", refresh=False)
         bar.update(1)
 
-    records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
+    if retime:
+        from railwatch.bench.run import ResultStore
+        from railwatch.bench.run import retime as retime_cells
+
+        store = ResultStore(out)
+        missing = [c.key for c in cells(p) if not store.done(p, c)]
+        if missing:
+            raise RailwatchError(f"{len(missing)} cells of this grid are not finished (e.g. "
+                                 f"{missing[0]}): run without --retime first")
+        bar.set_description("retime")
+        count = retime_cells(p, out, on_cell=lambda *_: bar.update(1))
+        reused = total - count
+        records = run_grid(p, out)  # every cell is finished: this only reads them
+    else:
+        records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
     bar.close()
     report = write_report(out, p, records, wall_s=time.perf_counter() - started)
     if obj["progress"]:

@@ -64,6 +64,18 @@ def test_attention_model_variants_share_one_training(tmp_path) -> None:  # type:
     assert cells[1]["fit_s"] >= cells[0]["fit_s"]  # the shared training's time is counted
 
 
+def test_retime_measures_scoring_again_and_keeps_the_aucs(smoke_run: Path, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    before = {(c["stage"], c["detector"]): c
+              for c in json.loads((smoke_run / "results.json").read_text())["cells"]}
+    assert main([*SMOKE, "--out", str(smoke_run), "--retime"]) == 0
+    after = json.loads((smoke_run / "results.json").read_text())["cells"]
+    for c in after:
+        old = before[(c["stage"], c["detector"])]
+        assert c["auc_instance"] == old["auc_instance"] and c["fit_s"] == old["fit_s"]
+        assert c["score_retimed"] and c["score_s"] > 0
+    assert main([*SMOKE, "--out", str(tmp_path / "empty"), "--retime"]) == 1  # nothing finished
+
+
 class _Collector(HTMLParser):
     def __init__(self) -> None:
         super().__init__()

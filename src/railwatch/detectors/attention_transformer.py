@@ -256,6 +256,15 @@ def window_relative_features(feats: NDArray[Any]) -> NDArray[Any]:
     return feats - np.median(feats, axis=-1, keepdims=True)
 
 
+def torch_window_relative(feats: torch.Tensor) -> torch.Tensor:
+    """:func:`window_relative_features` in torch, with numpy's median (the mean of the two middle
+    values when the count is even)."""
+    v = feats.sort(dim=-1).values
+    n = v.shape[-1]
+    med = v[..., n // 2] if n % 2 else (v[..., n // 2 - 1] + v[..., n // 2]) / 2
+    return feats - med.unsqueeze(-1)
+
+
 def window_relative_error(sq_error: NDArray[Any]) -> NDArray[Any]:
     """Squared error (N, T, C) divided by its median over each window's steps, per channel.
 
@@ -314,7 +323,9 @@ class AttentionFocusedTransformer(TorchDetector):
         out = {
             "sq_error": (y - xb) ** 2,  # (B, T, C)
             "log_input_attention": torch.log(a),  # (B, T, C)
-            "attention_features": attention_features(maps, xb.shape[2]),  # (B, C, F, L)
+            # Relative to the window's typical token here, per batch (cheaper than in numpy).
+            "attention_relative": torch_window_relative(
+                attention_features(maps, xb.shape[2])),  # (B, C, F, L)
         }
         if self.keep_maps_:
             B, C = xb.shape[0], xb.shape[2]
@@ -334,7 +345,7 @@ class AttentionFocusedTransformer(TorchDetector):
     @staticmethod
     def _attention_relative(raw: dict[str, NDArray[Any]]) -> tuple[NDArray[Any], NDArray[Any]]:
         """Attention features relative to their window's typical token: (N, C, F, L), (N, C, T)."""
-        enc = window_relative_features(raw["attention_features"])
+        enc = raw["attention_relative"]  # already relative (raw())
         inp = window_relative_features(raw["log_input_attention"].transpose(0, 2, 1))
         return enc, inp
 
@@ -383,6 +394,6 @@ class AttentionFocusedTransformer(TorchDetector):
         more: dict[str, NDArray[Any]] = {}
         if extras:
             more = {k: v for k, v in raw.items() if k == "input_attention"
-                    or k.startswith("attention_") and k != "attention_features"}
+                    or k.startswith("attention_") and k != "attention_relative"}
         return Scores(instance=reduce_instance_max(point), point=point, channel=channel,
                       extras=more)

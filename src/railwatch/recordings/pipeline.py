@@ -79,14 +79,14 @@ def null_threshold(instance_scores: NDArray[Any], tail: float = NULL_TAIL) -> fl
 
     >>> rng = np.random.default_rng(0)
     >>> null = rng.gumbel(0.0, 1.0, 100_000)
-    >>> round(null_threshold(null, 0.02), 1), round(float(np.quantile(null, 0.98)), 1)
+    >>> round(float(null_threshold(null, 0.02)), 1), round(float(np.quantile(null, 0.98)), 1)
     (3.9, 3.9)
     """
     q25, q50 = np.quantile(instance_scores, [0.25, 0.5])
     g25, g50 = -np.log(-np.log(0.25)), -np.log(-np.log(0.5))  # standard Gumbel quantiles
     beta = max(float(q50 - q25) / (g50 - g25), 1e-12)
     mu = float(q50) - beta * g50
-    return mu - beta * float(np.log(-np.log(1.0 - tail)))
+    return float(mu - beta * np.log(-np.log(1.0 - tail)))
 
 
 def recording_info(layout: Layout, prep: Preparation, threshold: float) -> dict[str, str]:
