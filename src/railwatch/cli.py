@@ -154,37 +154,17 @@ def list_detectors() -> None:
 
 def read_overrides(config: Path | None, settings: tuple[str, ...]) -> dict[str, Any]:
     """Config overrides from a YAML/TOML file, then ``--set key=value`` pairs (which win)."""
+    from railwatch.mapping_files import read_mapping
+
     values: dict[str, Any] = {}
     if config is not None:
-        values.update(_read_config_file(config))
+        values.update(read_mapping(config, "config"))
     for item in settings:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise RailwatchError(f"--set expects key=value, got {item!r} (e.g. --set epochs=5)")
         values[key.strip()] = value.strip()
     return values
-
-
-def _read_config_file(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise RailwatchError(f"no such config file: {path}")
-    text = path.read_text()
-    try:
-        if path.suffix == ".toml":
-            import tomllib
-
-            data: Any = tomllib.loads(text)
-        else:
-            import yaml
-
-            data = yaml.safe_load(text)
-    except Exception as e:  # noqa: BLE001 - any parse error is the same to the user
-        raise RailwatchError(f"cannot parse {path}: {_one_line(e)[:160]}") from None
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise RailwatchError(f"{path} must hold key: value pairs, not {type(data).__name__}")
-    return data
 
 
 def model_dir(path: Path) -> Path:
@@ -304,9 +284,10 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     prep = Preparation(rate=_rate(resample), window_s=window_s, train_hop_s=hop_s,
                        detect_hop_s=min(Preparation.detect_hop_s, window_s))
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
-    total = sum(Recording(p, layout).duration_s for p in paths)
+    sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
+    total = sum(r.duration_s for r in sources)
     with _progress_seconds(total, "reading") as bar:
-        X = training_windows(paths, layout, prep,
+        X = training_windows(sources, prep,
                              progress=lambda n: bar.update(round(n / layout.fs, 3)))
     if obj["progress"]:
         info(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
@@ -362,8 +343,8 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     started = time.perf_counter()
     with _progress_seconds(rec.duration_s, "detect") as bar:
         result = pipeline.detect(rm.detector, rec, rm.preparation,
-                            rm.threshold if threshold is None else threshold,
-                            progress=lambda n: bar.update(round(n / layout.fs, 3)))
+                                 rm.threshold if threshold is None else threshold,
+                                 progress=lambda n: bar.update(round(n / layout.fs, 3)))
     elapsed = time.perf_counter() - started
     pipeline.write_events(out, result.events)
     if plot is not None:

@@ -7,9 +7,8 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from railwatch.errors import RailwatchError
+from railwatch.mapping_files import read_mapping
 
 PRESET_DIR = Path(__file__).resolve().parents[3] / "configs" / "presets"
 
@@ -57,12 +56,7 @@ def preset_path(name_or_file: str | os.PathLike[str]) -> Path:
 def load_preset(name_or_file: str | os.PathLike[str], **overrides: Any) -> Preset:
     """Read a preset and apply command-line overrides (``None`` values are ignored)."""
     path = preset_path(name_or_file)
-    try:
-        values = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as e:
-        raise RailwatchError(f"cannot parse {path}: {' '.join(str(e).split())[:160]}") from None
-    if not isinstance(values, dict):
-        raise RailwatchError(f"{path} must hold key: value pairs")
+    values = read_mapping(path, "preset")
     values.setdefault("name", path.stem)
     values.update({k: v for k, v in overrides.items() if v is not None})
     return preset_from_dict(values, source=str(path))

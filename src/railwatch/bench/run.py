@@ -159,19 +159,30 @@ def fit_or_reuse(
     return det, fit_s, cell.detector
 
 
+def cell_detector(cell: Cell, preset: Preset) -> Detector:
+    """The unfitted detector of a cell: the preset's overrides, the cell's seed, silent."""
+    from railwatch.detectors import create
+
+    return create(cell.detector, {**preset.overrides_for(cell.detector), "seed": cell.seed,
+                                  "progress": False})
+
+
+def side_arrays(det: Detector, data: SyntheticSet) -> dict[str, Any] | None:
+    """The generator's components for a detector that needs them (the oracle), else None."""
+    return {"nuisance": data.nuisance, "noise_std": data.noise_std} if det.needs else None
+
+
 def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and evaluate one detector on one stage and seed: (record, small arrays)."""
-    from railwatch.detectors import create
     from railwatch.evaluation.metrics import evaluate_scores, score_seconds
 
     cell_started = time.perf_counter()
     train = dataset(cache, cell.stage, cell.seed, preset.n_train, "train")
     test = dataset(cache, cell.stage, cell.seed, preset.n_test, "test")
-    det = create(cell.detector, {**preset.overrides_for(cell.detector), "seed": cell.seed,
-                                 "progress": False})
+    det = cell_detector(cell, preset)
 
     def ctx(d: SyntheticSet) -> dict[str, Any] | None:
-        return {"nuisance": d.nuisance, "noise_std": d.noise_std} if det.needs else None
+        return side_arrays(det, d)
 
     det, fit_s, trained_by = fit_or_reuse(det, cell, preset, cache, train.X, ctx(train))
     scores = det.score(test.X, ctx(test))
@@ -224,11 +235,10 @@ class ResultStore:
         self.dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(self.dir / f"{cell.key}.npz") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        with atomic_path(self.dir / f"{cell.key}.json") as tmp:  # written last: marks it done
-            tmp.write_text(json.dumps(record, indent=1, default=_json_default))
+        self.write_record(cell, record)  # written last: marks it done
 
-    def rewrite_record(self, cell: Cell, record: dict[str, Any]) -> None:
-        """Replace a finished cell's record (its arrays stay)."""
+    def write_record(self, cell: Cell, record: dict[str, Any]) -> None:
+        """Write (or replace) a cell's record; a finished cell's arrays stay."""
         with atomic_path(self.dir / f"{cell.key}.json") as tmp:
             tmp.write_text(json.dumps(record, indent=1, default=_json_default))
 
@@ -356,7 +366,6 @@ def retime(preset: Preset, out: Path,
     import datetime
     from dataclasses import replace
 
-    from railwatch.detectors import create
     from railwatch.detectors.base import load_detector
     from railwatch.evaluation.metrics import score_seconds
 
@@ -364,8 +373,7 @@ def retime(preset: Preset, out: Path,
     grid = [c for c in cells(preset) if store.done(preset, c)]
     count = 0
     for i, cell in enumerate(grid):
-        det = create(cell.detector, {**preset.overrides_for(cell.detector), "seed": cell.seed,
-                                     "progress": False})
+        det = cell_detector(cell, preset)
         folder = store.cache / "models" / training_key(det, cell, preset)
         record = None
         if (folder / "fit.json").exists():
@@ -373,12 +381,11 @@ def retime(preset: Preset, out: Path,
             trained.config = replace(trained.config, **{f: getattr(det.config, f)
                                                         for f in det.scoring_fields})
             test = dataset(store.cache, cell.stage, cell.seed, preset.n_test, "test")
-            ctx = {"nuisance": test.nuisance, "noise_std": test.noise_std} \
-                if trained.needs else None
             record = store.record(cell)
-            record["score_s"] = score_seconds(trained, test.X, ctx, repeats=RETIME_REPEATS)
+            record["score_s"] = score_seconds(trained, test.X, side_arrays(trained, test),
+                                              repeats=RETIME_REPEATS)
             record["score_retimed"] = datetime.date.today().isoformat()
-            store.rewrite_record(cell, record)
+            store.write_record(cell, record)
             count += 1
         if on_cell is not None:
             on_cell(cell, record, i + 1, len(grid))

@@ -23,19 +23,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
-import yaml
-
 from railwatch.errors import RailwatchError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from railwatch.mapping_files import read_mapping
 
 KEYS = ("fs", "channels", "time", "speed", "position")
 
@@ -108,21 +100,7 @@ def parse_layout(values: Any, source: str = "layout") -> Layout:
 
 def load_layout(path: str | os.PathLike[str]) -> Layout:
     """Read a layout file (``.toml``, ``.yaml``/``.yml`` or ``.json``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise RailwatchError(f"no such layout file: {path}")
-    text = path.read_text()
-    try:
-        if path.suffix == ".toml":
-            values: Any = tomllib.loads(text)
-        elif path.suffix == ".json":
-            values = json.loads(text)
-        else:
-            values = yaml.safe_load(text)
-    except (tomllib.TOMLDecodeError, yaml.YAMLError, json.JSONDecodeError) as e:
-        raise RailwatchError(f"cannot parse layout {path}: {' '.join(str(e).split())[:160]}") \
-            from None
-    return parse_layout(values, str(path))
+    return parse_layout(read_mapping(path, "layout"), str(path))
 
 
 def layout_toml(layout: Layout) -> str:

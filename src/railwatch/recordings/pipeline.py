@@ -35,17 +35,16 @@ EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "thre
 
 
 # ----------------------------------------------------------------------------- training
-def training_windows(paths: Sequence[str | os.PathLike[str]], layout: Layout,
-                     prep: Preparation,
+def training_windows(recordings: Sequence[Recording], prep: Preparation,
                      progress: Callable[[int], None] | None = None) -> NDArray[np.float32]:
     """Windows (N, T, C) of every recording: resampled, framed every ``train_hop_s``."""
-    q = prep.factor(layout.fs)
-    fs = prep.output_rate(layout.fs)
-    window = prep.samples(prep.window_s, layout.fs, "the window")
-    hop = prep.samples(prep.train_hop_s, layout.fs, "the training hop")
     out = []
-    for path in paths:
-        rec = Recording(path, layout)
+    for rec in recordings:
+        layout = rec.layout
+        q = prep.factor(layout.fs)
+        fs = prep.output_rate(layout.fs)
+        window = prep.samples(prep.window_s, layout.fs, "the window")
+        hop = prep.samples(prep.train_hop_s, layout.fs, "the training hop")
         dec = Decimator(q, len(layout.channels))
         parts = []
         for chunk in rec.chunks():
@@ -55,7 +54,7 @@ def training_windows(paths: Sequence[str | os.PathLike[str]], layout: Layout,
         parts.append(dec.flush())
         signal = np.concatenate(parts)
         if len(signal) < window:
-            raise RailwatchError(f"{path} lasts {len(signal) / fs:.2f} s, shorter than one "
+            raise RailwatchError(f"{rec.path} lasts {len(signal) / fs:.2f} s, shorter than one "
                                  f"{prep.window_s:g}-s window")
         out.append(frame(signal, window, hop, cover_end=False)[0])
     return np.concatenate(out)

@@ -12,7 +12,6 @@ the training recordings and saved with the model.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -169,8 +168,13 @@ def frame(x: NDArray[Any], window: int, hop: int, cover_end: bool = True) -> tup
     if cover_end and starts[-1] + window < n:
         starts.append(n - window)
     idx = np.asarray(starts, dtype=np.int64)
+    return gather_windows(x, idx, window), idx
+
+
+def gather_windows(x: NDArray[Any], starts: NDArray[Any], window: int) -> NDArray[np.float32]:
+    """The windows (K, window, C) of a signal (n, C) that start at ``starts``."""
     views = np.lib.stride_tricks.sliding_window_view(x, window, axis=0)  # (n−w+1, C, w)
-    return np.ascontiguousarray(views[idx].transpose(0, 2, 1), dtype=np.float32), idx
+    return np.ascontiguousarray(views[starts].transpose(0, 2, 1), dtype=np.float32)
 
 
 def n_windows(n: int, window: int, hop: int) -> int:
@@ -179,7 +183,3 @@ def n_windows(n: int, window: int, hop: int) -> int:
         return 0
     k = (n - window) // hop + 1
     return k + ((k - 1) * hop + window < n)
-
-
-def seconds(n: int, fs: float) -> float:
-    return n / fs if fs else math.nan

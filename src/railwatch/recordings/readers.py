@@ -94,10 +94,6 @@ class Recording:
         return Chunk(0, cat("data"), cat("time"), cat("speed"), cat("position"))
 
 
-def open_recording(path: str | os.PathLike[str], layout: Layout) -> Recording:
-    return Recording(path, layout)
-
-
 # ----------------------------------------------------------------------------- checks
 def _make_chunk(columns: dict[str, NDArray[Any]], layout: Layout, start: int) -> Chunk:
     for name, values in columns.items():

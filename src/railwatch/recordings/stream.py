@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from railwatch.detectors.base import Detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.prepare import Decimator, Preparation
+from railwatch.recordings.prepare import Decimator, Preparation, gather_windows
 from railwatch.recordings.readers import Chunk
 
 
@@ -224,9 +224,8 @@ class StreamingDetector:
             if last_regular + self.window < n_out:
                 starts.append(n_out - self.window)
         if starts:
-            idx = np.asarray(starts) - self.buf_start
-            views = np.lib.stride_tricks.sliding_window_view(self.samples, self.window, axis=0)
-            windows = np.ascontiguousarray(views[idx].transpose(0, 2, 1))
+            windows = gather_windows(self.samples, np.asarray(starts) - self.buf_start,
+                                     self.window)
             scores = self.detector.score(windows)
             merge_max(self.point, scores.point, np.asarray(starts), self.final)
             merge_max(self.channel, scores.channel, np.asarray(starts), self.final)
