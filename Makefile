@@ -7,7 +7,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test lint bench-generate bench-detectors bench-recordings bench-standard \
+.PHONY: run data test lint bench-generate bench-detectors bench-bounds bench-recordings bench-standard \
 	screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -34,6 +34,9 @@ bench-generate: $(STAMP)  ## time `railwatch generate` for every stage at n = 10
 
 bench-detectors: $(STAMP)  ## stage-1 AUC, fit and scoring time of every detector
 	$(BIN)/python benchmarks/detectors.py
+
+bench-bounds: $(STAMP)  ## stage 1: a supervised bound per representation, next to its detector
+	$(BIN)/python benchmarks/representation_bounds.py
 
 bench-recordings: $(STAMP)  ## detection quality, real-time factor and onboard latency on recordings
 	$(BIN)/python benchmarks/recordings.py --work runs/recordings

@@ -29,7 +29,7 @@ cross-entropy on 20,000 labelled stage-1 windows (seed 2, 10 epochs, Adam 1e-3).
 windows (seed 1). The unsupervised detectors are fitted on 2,000 unlabelled windows (seed 0) as in
 `make bench-detectors`.
 
-Run: `python benchmarks/representation_bounds.py` (about 10 minutes on 2 cores); writes
+Run: `make bench-bounds` (about 5 minutes on 2 cores); writes
 docs/results/representation-bounds.md.
 """
 
