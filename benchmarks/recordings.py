@@ -129,9 +129,9 @@ def main() -> None:
     rm = load_recording_model(model)
     onnx = load_onnx(work / "model.onnx", threads=1)
     rec = Recording(work / "test.parquet", rm.layout).read()
-    from railwatch.recordings.prepare import decimate
+    from railwatch.recordings.prepare import resample
 
-    window = decimate(rec.data[:4000], 20)[None, :200]  # one 2-s window at 100 Hz
+    window = resample(rec.data[:4000], 1, 20)[None, :200]  # one 2-s window at 100 Hz
     lat_onnx = latency(lambda: onnx.score(window))
     lat_torch = latency(lambda: rm.detector.score(window))
     blocks = [rec.data[i:i + 1000] for i in range(0, 200_000, 1000)]  # 0.5-s raw blocks

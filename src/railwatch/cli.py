@@ -224,7 +224,7 @@ for 'railwatch detect'.""")
 @click.option("--layout", "layout_file", type=click.Path(path_type=Path),
               help="Recording layout (TOML/YAML): columns, groups, rate, time/speed/position.")
 @click.option("--resample", default="100", show_default=True, metavar="HZ|none",
-              help="Rate the model works at; the recording's rate must be a multiple of it.")
+              help="Rate the model works at, at most the recording's (2048 -> 100 Hz is 25/512).")
 @click.option("--window", "window_s", type=float, default=2.0, show_default=True,
               help="Window length in seconds (recordings).")
 @click.option("--hop", "hop_s", type=float, default=1.0, show_default=True,

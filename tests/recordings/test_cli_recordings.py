@@ -90,7 +90,7 @@ def test_recordings_cli_errors(runs: Path, tmp_path: Path, capsys) -> None:  # t
          "needs --layout"),
         (["train", "--detector", "cnn-ae", "--out", str(tmp_path / "m")], "either --data"),
         (["train", "--detector", "cnn-ae", "--recordings", rec, "--layout", layout,
-          "--resample", "300", "--out", str(tmp_path / "m")], "integer multiple"),
+          "--resample", "3000", "--out", str(tmp_path / "m")], "only lowers the rate"),
         (["detect", "--model", str(tmp_path / "none"), "--recording", rec, "--out",
           str(tmp_path / "e.csv")], "no model directory"),
         (["detect", "--model", str(tmp_path), "--recording", rec, "--out",

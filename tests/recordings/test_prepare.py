@@ -8,14 +8,24 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from railwatch.errors import RailwatchError
-from railwatch.recordings.prepare import Decimator, Preparation, decimate, frame, n_windows
+from railwatch.recordings.prepare import (
+    Preparation,
+    Resampler,
+    antialias_filter,
+    frame,
+    n_windows,
+    resample,
+)
 
 
-def test_resampling_keeps_5_hz_and_removes_content_above_the_new_nyquist() -> None:
-    t = np.arange(0, 20, 1 / 2000)
+@pytest.mark.parametrize(("fs", "up", "down"), [(2000.0, 1, 20), (2048.0, 25, 512)])
+def test_resampling_keeps_5_hz_and_removes_content_above_the_new_nyquist(
+        fs: float, up: int, down: int) -> None:
+    assert Preparation().ratio(fs) == (up, down)
+    t = np.arange(0, 20, 1 / fs)
     x = np.stack([np.sin(2 * np.pi * 5 * t), np.sin(2 * np.pi * 70 * t),
                   np.sin(2 * np.pi * 5 * t) + np.sin(2 * np.pi * 300 * t)], axis=1)
-    y = decimate(x, 20)  # 2000 -> 100 Hz: Nyquist 50 Hz
+    y = resample(x, up, down)  # -> 100 Hz: Nyquist 50 Hz
     assert y.shape == (2000, 3)
     inner = slice(100, -100)  # away from the edges
     t100 = np.arange(2000) / 100
@@ -25,39 +35,47 @@ def test_resampling_keeps_5_hz_and_removes_content_above_the_new_nyquist() -> No
 
 
 @settings(max_examples=25, deadline=None)
-@given(st.lists(st.integers(1, 400), min_size=1, max_size=20), st.sampled_from([2, 5, 20]))
-def test_streaming_equals_one_shot(sizes: list[int], q: int) -> None:
+@given(st.lists(st.integers(1, 400), min_size=1, max_size=20),
+       st.sampled_from([(1, 2), (1, 5), (1, 20), (2, 3), (5, 12), (25, 512)]))
+def test_streaming_equals_one_shot(sizes: list[int], ratio: tuple[int, int]) -> None:
+    up, down = ratio
     rng = np.random.default_rng(sum(sizes))
     x = rng.normal(size=(sum(sizes), 2))
-    d = Decimator(q, 2)
+    r = Resampler(up, down, 2)
     parts, i = [], 0
     for n in sizes:
-        parts.append(d.push(x[i:i + n]))
+        parts.append(r.push(x[i:i + n]))
         i += n
-    parts.append(d.flush())
-    np.testing.assert_array_equal(np.concatenate(parts), decimate(x, q))
-    assert len(np.concatenate(parts)) == -(-len(x) // q)
+    parts.append(r.flush())
+    np.testing.assert_array_equal(np.concatenate(parts), resample(x, up, down))
+    assert len(np.concatenate(parts)) == (len(x) - 1) * up // down + 1
 
 
-def test_one_shot_equals_convolution_with_edges_repeated() -> None:
-    from railwatch.recordings.prepare import antialias_filter
-
+@pytest.mark.parametrize(("up", "down"), [(1, 5), (2, 3), (5, 12)])
+def test_one_shot_equals_the_definition_with_edges_repeated(up: int, down: int) -> None:
+    """y[k] = Σ_n h[k·down + D − n·up] x[n], x extended by repetition at both ends."""
     rng = np.random.default_rng(1)
-    x = rng.normal(size=(1001, 1))
-    h = antialias_filter(5)
-    d = (len(h) - 1) // 2
-    padded = np.r_[np.repeat(x[:1, 0], d), x[:, 0], np.repeat(x[-1:, 0], d)]
-    ref = np.convolve(padded, h, mode="valid")[::5]
-    np.testing.assert_allclose(decimate(x, 5)[:, 0], ref, atol=1e-12)
+    x = rng.normal(size=(301, 1))
+    h = antialias_filter(up, down)
+    delay = (len(h) - 1) // 2
+    n_out = (len(x) - 1) * up // down + 1
+    ref = np.zeros(n_out)
+    for k in range(n_out):
+        for n in range(-len(h), len(x) + len(h)):
+            j = k * down + delay - n * up
+            if 0 <= j < len(h):
+                ref[k] += h[j] * x[min(max(n, 0), len(x) - 1), 0]
+    np.testing.assert_allclose(resample(x, up, down)[:, 0], ref, atol=1e-6)
 
 
-def test_preparation_factor_and_errors() -> None:
-    assert Preparation().factor(2000.0) == 20
-    assert Preparation(rate=None).factor(2048.0) == 1
-    with pytest.raises(RailwatchError, match="integer multiple"):
-        Preparation(rate=100).factor(2048.0)
-    with pytest.raises(RailwatchError, match="integer multiple"):
-        Preparation(rate=200).factor(100.0)
+def test_preparation_ratio_and_errors() -> None:
+    assert Preparation().ratio(2000.0) == (1, 20)
+    assert Preparation().ratio(25600.0) == (1, 256)
+    assert Preparation(rate=None).ratio(2048.0) == (1, 1)
+    with pytest.raises(RailwatchError, match="only lowers the rate"):
+        Preparation(rate=200).ratio(100.0)
+    with pytest.raises(RailwatchError, match="not a fraction"):
+        Preparation(rate=100).ratio(1651.7)
 
 
 @given(st.integers(1, 60), st.integers(1, 12), st.integers(1, 12))

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from railwatch.detectors import create
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.prepare import Preparation, decimate, frame
+from railwatch.recordings.prepare import Preparation, frame, resample
 from railwatch.recordings.stream import EventTracker, StreamingDetector, merge_max
 
 
@@ -58,24 +58,34 @@ def test_events_do_not_depend_on_block_sizes(sizes: list[int], seed: int, gap: i
         assert e.peak_s == time[peak] and e.channel == "abc"[int(np.argmax(channel[peak]))]
 
 
+def recording(fs: float) -> np.ndarray:
+    """30 s of two channels at ``fs``: a spike at 7.5 s on x, an offset from 20 s on y."""
+    rng = np.random.default_rng(0)
+    t = np.arange(int(30 * fs)) / fs
+    raw = np.stack([np.sin(2 * np.pi * 3 * t), np.cos(2 * np.pi * 1 * t)], 1)
+    raw = raw + 0.1 * rng.normal(size=raw.shape)
+    raw[(t >= 7.5) & (t < 7.52), 0] += 4.0
+    raw[(t >= 20.0) & (t < 20.15), 1] -= 2.0
+    return raw.astype(np.float32)
+
+
 @pytest.fixture(scope="module")
 def tiny() -> tuple[object, Layout, Preparation, np.ndarray]:
     """A tiny CNN autoencoder on 50-sample windows at 100 Hz (recorded at 200 Hz)."""
-    rng = np.random.default_rng(0)
-    t = np.arange(6000) / 200.0
-    raw = np.stack([np.sin(2 * np.pi * 3 * t), np.cos(2 * np.pi * 1 * t)], 1)
-    raw = raw + 0.1 * rng.normal(size=raw.shape)
-    raw[1500:1504, 0] += 4.0
-    raw[4000:4030, 1] -= 2.0
+    raw = recording(200.0)
     layout = Layout(fs=200.0, channels=("x", "y"), groups=("axle", "body"))
     prep = Preparation(rate=100.0, window_s=0.5, train_hop_s=0.25, detect_hop_s=0.2)
-    windows, _ = frame(decimate(raw, 2), 50, 25)
+    windows, _ = frame(resample(raw, 1, 2), 50, 25)
     det = create("cnn-ae", {"epochs": 2, "widths": (4, 4), "progress": False}).fit(windows)
-    return det, layout, prep, raw.astype(np.float32)
+    return det, layout, prep, raw
 
 
-def test_streaming_equals_brute_force_batch(tiny) -> None:  # type: ignore[no-untyped-def]
-    det, layout, prep, raw = tiny
+@pytest.mark.parametrize(("fs", "up", "down"), [(200.0, 1, 2), (240.0, 5, 12)])
+def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: ignore[no-untyped-def]
+                                            down: int) -> None:
+    det, layout, prep, _ = tiny
+    raw = recording(fs)  # 240 Hz: a rational resampling factor (5 / 12)
+    layout = Layout(fs=fs, channels=layout.channels, groups=layout.groups)
     rng = np.random.default_rng(3)
     traces: list[np.ndarray] = []
     stream = StreamingDetector(det, layout, prep, threshold=float(det.threshold_) * 0.5,
@@ -89,7 +99,8 @@ def test_streaming_equals_brute_force_batch(tiny) -> None:  # type: ignore[no-un
     got = np.concatenate(traces)
 
     # Batch: resample everything, frame (every 20 samples, tail covered), merge by a loop.
-    signal = decimate(raw, 2)
+    signal = resample(raw, up, down)
+    assert len(signal) == 3000
     windows, starts = frame(signal, 50, 20)
     scores = det.score(windows).point  # type: ignore[attr-defined]
     brute = np.full(len(signal), -np.inf)

@@ -25,7 +25,7 @@ from railwatch.atomic import atomic_path
 from railwatch.detectors.base import Detector, load_detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.prepare import Decimator, Preparation, frame
+from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Recording
 from railwatch.recordings.stream import Event, StreamingDetector
 
@@ -41,17 +41,16 @@ def training_windows(recordings: Sequence[Recording], prep: Preparation,
     out = []
     for rec in recordings:
         layout = rec.layout
-        q = prep.factor(layout.fs)
         fs = prep.output_rate(layout.fs)
         window = prep.samples(prep.window_s, layout.fs, "the window")
         hop = prep.samples(prep.train_hop_s, layout.fs, "the training hop")
-        dec = Decimator(q, len(layout.channels))
+        resampler = Resampler(*prep.ratio(layout.fs), len(layout.channels))
         parts = []
         for chunk in rec.chunks():
-            parts.append(dec.push(chunk.data))
+            parts.append(resampler.push(chunk.data))
             if progress:
                 progress(len(chunk))
-        parts.append(dec.flush())
+        parts.append(resampler.flush())
         signal = np.concatenate(parts)
         if len(signal) < window:
             raise RailwatchError(f"{rec.path} lasts {len(signal) / fs:.2f} s, shorter than one "

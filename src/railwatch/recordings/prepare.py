@@ -1,18 +1,20 @@
 """Preparing a recording for a detector: anti-aliased resampling and windowing.
 
 The paper scales its 2000 Hz field data by ×20 to the benchmark's 100 Hz; railwatch does the same
-by default (``Preparation.rate`` = 100 Hz, or ``None`` to keep the file's rate). Resampling is an
-integer decimation behind a linear-phase low-pass FIR filter (Kaiser window, cut-off at 80 % of
-the new Nyquist frequency, about 80 dB stop-band), applied in a streaming form: the output is the
-same whatever the block sizes the samples arrive in, and output sample k is the filtered signal at
-input sample ``k · q`` (the filter's delay is compensated; the first and last samples are
-extended by repetition). Per-channel normalisation is the detector's own, fitted on the windows of
-the training recordings and saved with the model.
+by default (``Preparation.rate`` = 100 Hz, or ``None`` to keep the file's rate). Resampling is by a
+rational factor ``up / down`` (2000 -> 100 Hz: 1/20; 2048 -> 100 Hz: 25/512), polyphase, behind a
+linear-phase low-pass FIR filter (Kaiser window, cut-off at 80 % of the new Nyquist frequency,
+about 80 dB stop-band), applied in a streaming form: the output is the same whatever the block
+sizes the samples arrive in, and output sample k is the filtered signal at input time
+``k · down / up`` (the filter's delay is compensated; the first and last samples are extended by
+repetition). Per-channel normalisation is the detector's own, fitted on the windows of the
+training recordings and saved with the model.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -34,20 +36,26 @@ class Preparation:
     def output_rate(self, fs: float) -> float:
         return fs if self.rate is None else float(self.rate)
 
-    def factor(self, fs: float) -> int:
-        """The integer decimation factor from ``fs`` to :attr:`rate` (1: no resampling)."""
+    def ratio(self, fs: float) -> tuple[int, int]:
+        """``(up, down)``: the resampling factor ``up / down`` from ``fs`` to :attr:`rate` in
+        lowest terms ((1, 1): no resampling)."""
         if self.rate is None:
-            return 1
-        q = fs / self.rate
-        if q < 1 - 1e-9 or abs(q - round(q)) > 1e-6:
+            return 1, 1
+        if self.rate > fs * (1 + 1e-9):
             raise RailwatchError(
-                f"cannot resample {fs:g} Hz to {self.rate:g} Hz: the recording's rate must be an "
-                f"integer multiple of the target; choose a rate that divides {fs:g} Hz, or none")
-        return int(round(q))
+                f"cannot resample {fs:g} Hz up to {self.rate:g} Hz: railwatch only lowers the "
+                f"rate; choose a rate of at most {fs:g} Hz, or none")
+        frac = Fraction(self.rate / fs).limit_denominator(MAX_FACTOR)
+        if abs(float(frac) * fs - self.rate) > 1e-9 * self.rate:  # no drift of the time axis
+            near = fs / round(fs / self.rate)  # an integer divisor of fs
+            raise RailwatchError(
+                f"cannot resample {fs:g} Hz to {self.rate:g} Hz: the ratio is not a fraction "
+                f"with terms up to {MAX_FACTOR}; choose a rate such as {near:g} Hz, or none")
+        return frac.numerator, frac.denominator
 
     def check(self, fs: float) -> None:
         """Every setting usable for a recording at ``fs``: one-line errors now, not later."""
-        self.factor(fs)
+        self.ratio(fs)
         window = self.samples(self.window_s, fs, "the window")
         self.samples(self.train_hop_s, fs, "the training hop")
         hop = self.samples(self.detect_hop_s, fs, "the detection hop")
@@ -68,24 +76,35 @@ class Preparation:
         return asdict(self)
 
 
-def antialias_filter(q: int) -> NDArray[np.float64]:
-    """Linear-phase low-pass FIR taps for decimation by ``q`` (odd length, unit DC gain)."""
-    taps = 20 * q + 1
-    return signal.firwin(taps, 0.8 / q, window=("kaiser", 8.0))  # cut-off relative to Nyquist
+#: Largest term of a resampling ratio: the filter has 20 taps per unit of it.
+MAX_FACTOR = 10_000
 
 
-class Decimator:
-    """Streaming anti-aliased decimation of (n, C) blocks by an integer factor.
+def antialias_filter(up: int, down: int = 1) -> NDArray[np.float64]:
+    """Linear-phase low-pass FIR taps for resampling by ``up / down``, at the upsampled rate (odd
+    length, DC gain ``up``: the zeros stuffed between input samples are made up for)."""
+    m = max(up, down)
+    taps = 20 * m + 1
+    return up * signal.firwin(taps, 0.8 / m, window=("kaiser", 8.0))  # cut-off relative to Nyquist
+
+
+class Resampler:
+    """Streaming anti-aliased resampling of (n, C) blocks by a rational factor ``up / down``.
 
     ``push(block)`` returns the output samples that are complete; ``flush()`` the rest. Output k
-    corresponds to input sample k · q. Equal to one-shot filtering of the whole signal (edges
-    extended by repetition) whatever the block sizes.
+    is the filtered signal at input time ``k · down / up``:
+    ``y[k] = Σ_n h[k·down + D − n·up] x[n]`` with ``h`` the filter at the upsampled rate and ``D``
+    its delay. Equal to one-shot filtering of the whole signal (edges extended by repetition)
+    whatever the block sizes. Polyphase: outputs of equal ``k mod up`` share one set of taps
+    (every ``up``-th tap of ``h``), so each such group is one strided convolution
+    (``scipy.signal.upfirdn``).
     """
 
-    def __init__(self, q: int, n_channels: int) -> None:
-        self.q = q
-        self.h = antialias_filter(q) if q > 1 else np.ones(1)
-        self.delay = (len(self.h) - 1) // 2
+    def __init__(self, up: int, down: int, n_channels: int) -> None:
+        self.up, self.down = up, down
+        self.identity = up == down == 1
+        self.h = antialias_filter(up, down) if not self.identity else np.ones(1)
+        self.delay = (len(self.h) - 1) // 2  # D, at the upsampled rate
         self.n_channels = n_channels
         self.buffer = np.zeros((0, n_channels))  # input samples still needed
         self.buffer_start = 0  # input index of buffer[0] (negative while the start is padded)
@@ -93,61 +112,80 @@ class Decimator:
         self.started = False
         self.flushed = False
 
+    def n_outputs(self, n_in: int) -> int:
+        """Outputs of ``n_in`` input samples: those at input times 0 .. n_in − 1."""
+        return (n_in - 1) * self.up // self.down + 1 if n_in else 0
+
     def push(self, block: NDArray[Any]) -> NDArray[np.float32]:
         if self.flushed:
             raise RailwatchError("this resampler was flushed: start a new one")
         x = np.asarray(block, dtype=np.float64)
         if x.ndim != 2 or x.shape[1] != self.n_channels:
             raise RailwatchError(f"expected blocks of shape (n, {self.n_channels}), got {x.shape}")
-        if self.q == 1:
+        if self.identity:
             return x.astype(np.float32)
         if not self.started and len(x):
-            pad = np.repeat(x[:1], self.delay, axis=0)  # extend the first sample backwards
-            self.buffer, self.buffer_start, self.started = pad, -self.delay, True
+            pad = self.delay // self.up  # input samples before 0 that output 0 reads
+            self.buffer, self.buffer_start = np.repeat(x[:1], pad, axis=0), -pad
+            self.started = True
         self.buffer = np.concatenate([self.buffer, x])
         return self._emit()
 
     def flush(self) -> NDArray[np.float32]:
         """The remaining outputs, the last sample extended forwards (once: later calls give
         nothing)."""
-        if self.q == 1 or not self.started or self.flushed:
+        if self.identity or not self.started or self.flushed:
             self.flushed = True
             return np.zeros((0, self.n_channels), np.float32)
         self.flushed = True
         n_in = self.buffer_start + len(self.buffer)  # input samples seen
-        n_out = -(-n_in // self.q)
-        need = (n_out - 1) * self.q + self.delay + 1 - n_in  # samples missing for the last one
+        n_out = self.n_outputs(n_in)
+        need = self._newest(n_out - 1) + 1 - n_in  # samples missing for the last output
         if need > 0:
             self.buffer = np.concatenate([self.buffer, np.repeat(self.buffer[-1:], need, 0)])
         return self._emit(limit=n_out)
 
+    def _newest(self, k: int) -> int:
+        """Index of the newest input sample that output ``k`` reads."""
+        return (k * self.down + self.delay) // self.up
+
     def _emit(self, limit: int | None = None) -> NDArray[np.float32]:
+        up, down = self.up, self.down
         end = self.buffer_start + len(self.buffer)  # one past the last input index held
-        # Output k needs inputs k·q − delay .. k·q + delay.
-        last = (end - 1 - self.delay) // self.q
+        last = (end * up - 1 - self.delay) // down  # the last output whose inputs are all held
         if limit is not None:
             last = min(last, limit - 1)
-        if last < self.next_out:
+        count = last + 1 - self.next_out
+        if count <= 0:
             return np.zeros((0, self.n_channels), np.float32)
-        lo = self.next_out * self.q - self.delay - self.buffer_start
-        hi = last * self.q + self.delay + 1 - self.buffer_start
-        seg = self.buffer[lo:hi]  # (m, C)
-        # Polyphase: upfirdn's output i + (len(h) − 1) / q is Σ_j h[j] seg[i·q + len(h) − 1 − j],
-        # i.e. Σ_j h[j] x[k·q + delay − j] for output k = next_out + i.
-        first = (len(self.h) - 1) // self.q
-        out = signal.upfirdn(self.h, seg, up=1, down=self.q, axis=0)[
-            first:first + last + 1 - self.next_out]
+        out = np.empty((count, self.n_channels))
+        zeros = np.zeros((down - 1, self.n_channels))
+        padded = np.concatenate([zeros, self.buffer])  # room to align any phase (zero taps)
+        for r in range(min(up, count)):  # outputs next_out + r + j·up, j = 0, 1, ...
+            k = self.next_out + r
+            newest = self._newest(k)
+            phase = k * down + self.delay - newest * up  # h[phase + t·up] weighs x[newest − t]
+            taps = self.h[phase::up]
+            rel = newest - self.buffer_start + down - 1  # newest's index in ``padded``
+            start = rel % down  # so that newest sits at a multiple of down in ``padded[start:]``
+            # upfirdn's output i is Σ_t taps[t] seg[i·down − t]: i = (rel − start) / down + j.
+            first = (rel - start) // down
+            n = len(range(r, count, up))
+            out[r::up] = signal.upfirdn(taps, padded[start:], up=1, down=down,
+                                        axis=0)[first:first + n]
         self.next_out = last + 1
-        keep_from = self.next_out * self.q - self.delay - self.buffer_start
+        oldest = -((self.delay - self.next_out * down) // up)  # ceil((k·down − D) / up)
+        keep_from = max(oldest - self.buffer_start, 0)
         self.buffer = self.buffer[keep_from:]
         self.buffer_start += keep_from
         return out.astype(np.float32)
 
 
-def decimate(x: NDArray[Any], q: int) -> NDArray[np.float32]:
-    """One-shot anti-aliased decimation of (n, C) by ``q`` (the streaming filter, one block)."""
-    d = Decimator(q, x.shape[1])
-    return np.concatenate([d.push(x), d.flush()])
+def resample(x: NDArray[Any], up: int, down: int) -> NDArray[np.float32]:
+    """One-shot anti-aliased resampling of (n, C) by ``up / down`` (the streaming filter, one
+    block)."""
+    r = Resampler(up, down, x.shape[1])
+    return np.concatenate([r.push(x), r.flush()])
 
 
 def frame(x: NDArray[Any], window: int, hop: int, cover_end: bool = True) -> tuple[

@@ -1,7 +1,7 @@
 """Streaming detection: raw samples in, events out, with bounded memory and latency.
 
 :class:`StreamingDetector` takes blocks of raw samples as they arrive (any sizes), resamples them
-(:class:`~railwatch.recordings.prepare.Decimator`), scores every complete window (``window``
+(:class:`~railwatch.recordings.prepare.Resampler`), scores every complete window (``window``
 samples every ``hop``), merges the windows' per-step scores into one score per sample (the maximum
 over the windows that cover it, so a sample's score exceeds the instance threshold exactly when
 some window containing it would be flagged), and turns runs of samples above the detector's fitted
@@ -11,9 +11,9 @@ block sizes; the per-sample scores agree to float rounding, as windows may be ba
 
 Latency: a sample's score is final once no later window can cover it, i.e. one window (plus up to
 one hop) after it arrives; an event is emitted when ``merge_gap_s`` of quiet samples have followed
-it; the resampling filter adds its delay (10 input periods per decimation step: 0.1 s at
-2000 -> 100 Hz). With the defaults (2-s windows, 0.5-s hop, 0.5-s merge gap) an event leaves at
-most about 3.1 s of recording after the defect.
+it; the resampling filter adds its delay (10 output periods: 0.1 s at 100 Hz). With the defaults
+(2-s windows, 0.5-s hop, 0.5-s merge gap) an event leaves at most about 3.1 s of recording after
+the defect.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from railwatch.detectors.base import Detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.prepare import Decimator, Preparation, gather_windows
+from railwatch.recordings.prepare import Preparation, Resampler, gather_windows
 from railwatch.recordings.readers import Chunk
 
 
@@ -129,8 +129,8 @@ class StreamingDetector:
                 f"the layout names {n_channels} channels but the model was trained on "
                 f"{detector.n_channels_}: use the layout the model was trained with")
         self.detector, self.layout, self.prep = detector, layout, preparation
-        self.q = preparation.factor(layout.fs)
-        self.fs = layout.fs / self.q
+        self.up, self.down = preparation.ratio(layout.fs)
+        self.fs = preparation.output_rate(layout.fs)
         self.window = preparation.samples(preparation.window_s, layout.fs, "the window")
         if self.window != detector.n_steps_:
             raise RailwatchError(
@@ -144,7 +144,7 @@ class StreamingDetector:
         self.tracker = EventTracker(self.threshold, max(1, round(merge_gap_s * self.fs)),
                                     layout.channels, layout.groups)
         self.on_samples = on_samples
-        self.decimator = Decimator(self.q, n_channels)
+        self.resampler = Resampler(self.up, self.down, n_channels)
         self.n_in = 0  # raw samples received
         self.distance = 0.0  # integrated speed (m) up to raw sample n_in
         self.t0: float | None = None  # time of raw sample 0 (time column), else 0
@@ -172,28 +172,31 @@ class StreamingDetector:
         if not np.isfinite(data).all():
             raise RailwatchError(f"non-finite sample in the block starting at sample {self.n_in}")
         self._collect_aux(chunk)
-        return self._advance(self.decimator.push(data), end=False)
+        return self._advance(self.resampler.push(data), end=False)
 
     def close(self) -> list[Event]:
         """End of the recording: score the tail and return the last events."""
         if self.closed:
             return []
         self.closed = True  # even if the tail fails: its padding must not be scored twice
-        events = self._advance(self.decimator.flush(), end=True)
+        events = self._advance(self.resampler.flush(), end=True)
         return events + self.tracker.close()
 
     # -- internals ---------------------------------------------------------------------------
     def _collect_aux(self, chunk: Chunk) -> None:
-        """Time and position at the raw samples that become outputs (indices k·q)."""
+        """Time and position of the outputs whose input time ``k · down / up`` falls in this
+        chunk: positions (and a time column) are read at the raw sample at or just before it."""
         n = len(chunk.data)
-        idx = np.arange(self.n_in, self.n_in + n)
-        pick = idx % self.q == 0
+        up, down = self.up, self.down
+        ks = np.arange(-(-self.n_in * up // down), ((self.n_in + n) * up - 1) // down + 1)
+        at = ks * down / up  # input time of each output, in samples
+        pick = ks * down // up - self.n_in  # the raw sample at or before it, in this chunk
         if chunk.time is not None:
             if self.t0 is None:
                 self.t0 = float(chunk.time[0]) - self.n_in / self.layout.fs
-            t = chunk.time[pick]
+            t = chunk.time[pick] + (at % 1) / self.layout.fs
         else:
-            t = idx[pick] / self.layout.fs + (self.t0 or 0.0)
+            t = at / self.layout.fs + (self.t0 or 0.0)
         if chunk.position is not None:
             pos = chunk.position[pick]
         elif chunk.speed is not None:
@@ -201,7 +204,7 @@ class StreamingDetector:
             pos = np.concatenate([[self.distance], travelled])[:-1][pick]  # at each sample
             self.distance = float(travelled[-1])
         else:
-            pos = np.full(int(pick.sum()), np.nan)
+            pos = np.full(len(ks), np.nan)
         self.pending_aux.append(np.stack([t, pos], axis=1))
         self.n_in += n
 
