@@ -16,10 +16,10 @@ import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import torch
 
+from railwatch.bench.outputs import write_markdown
 from railwatch.bench.run import cpu_name
 from railwatch.detectors import create, names
 from railwatch.evaluation.metrics import auc_instance, score_seconds
@@ -98,10 +98,7 @@ def main() -> None:
         lines += ["", f"Speed-up, median of the pairs: **{statistics.median(ratios):.1f}×** "
                   f"(range {ratios[0]:.1f}–{ratios[-1]:.1f}×; the paper: 673.5 s / 502.5 s = "
                   "1.3×)."]
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    print(write_markdown(args.out, lines), end="")
 
 
 if __name__ == "__main__":

@@ -139,6 +139,7 @@ def main() -> None:
     it = iter(blocks)
     lat_stream = latency(lambda: stream.push(next(it)), repeats=150)
 
+    from railwatch.bench.outputs import write_markdown
     from railwatch.bench.run import cpu_name
 
     lines = [
@@ -173,8 +174,7 @@ def main() -> None:
         "defect (window 2 s + hop 0.5 s + merge gap 0.5 s + filter delay 0.1 s), plus the "
         "computing latency above.", "",
     ]
-    Path(args.out).write_text("\n".join(lines))
-    print("\n".join(lines))
+    print(write_markdown(args.out, lines), end="")
     print(json.dumps({"work": str(work)}), file=sys.stderr)
 
 

@@ -40,7 +40,6 @@ import datetime
 import os
 import sys
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -49,6 +48,7 @@ from sklearn.metrics import roc_auc_score
 from torch import nn
 from torch.nn import functional as F
 
+from railwatch.bench.outputs import write_markdown
 from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
 from railwatch.detectors.base import Detector
@@ -195,10 +195,7 @@ def main() -> None:
         "|---|---|---|---|---|---|---|---|",
     ]
     lines += [f"| {rep} | {fmt(b)} | {det} | {fmt(u)} |" for rep, b, det, u in table]
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    print(write_markdown(args.out, lines), end="")
 
 
 if __name__ == "__main__":

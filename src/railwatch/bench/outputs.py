@@ -42,6 +42,15 @@ def _write_text(path: Path, text: str) -> None:
         tmp.write_text(text)
 
 
+def write_markdown(path: str | Path, lines: list[str]) -> str:
+    """Write a benchmark script's result page whole or not at all (its folder created); returns
+    the text, for the script to print."""
+    path, text = Path(path), "\n".join(lines) + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _write_text(path, text)
+    return text
+
+
 def write_report(out: Path, preset: Preset, records: list[dict[str, Any]],
                  wall_s: float | None = None) -> Path:
     """Write every output file of a run into ``out``; returns the path of report.html."""
