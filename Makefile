@@ -3,11 +3,16 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
+LOCK := requirements.lock
+LATEST ?= .venv-latest
+# How requirements.lock is made from pyproject.toml's ranges (torch held by constraints.txt).
+COMPILE := $(BIN)/pip-compile --quiet --extra dev --extra ray --all-build-deps --allow-unsafe \
+	--strip-extras --no-emit-index-url --no-emit-find-links -c constraints.txt -o $(LOCK)
 OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test lint bench-generate bench-detectors bench-bounds bench-recordings bench-standard \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-standard \
 	screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -24,6 +29,21 @@ data: $(STAMP)  ## generate all eight stages (3,000 windows each) and draw Figur
 
 test: $(STAMP)  ## the whole test suite (slow tests included)
 	$(BIN)/python -m pytest
+
+test-latest:  ## the suite against the newest releases pyproject.toml allows (in $(LATEST), not the lock)
+	rm -rf $(LATEST)
+	$(PYTHON) -m venv $(LATEST)
+	$(LATEST)/bin/python -m pip install --quiet --upgrade pip
+	$(LATEST)/bin/python -m pip install --quiet -c constraints.txt -e '.[dev,ray]'
+	$(LATEST)/bin/python tools/lock_drift.py $(LOCK)
+	$(LATEST)/bin/python -m pytest
+
+lock: $(STAMP)  ## regenerate requirements.lock with the newest releases (then run make test)
+	$(COMPILE) --upgrade pyproject.toml
+	@# torch stays a public version: this machine's pip picks its local CPU wheel (2.13.0+cpu),
+	@# elsewhere pip takes the same release from PyPI.
+	sed -i 's/^torch==\([0-9.]*\)+cpu$$/torch==\1/' $(LOCK)
+	@echo "wrote $(LOCK): commit it with the test run that passed on it"
 
 lint: $(STAMP)  ## developer loop: lint and type-check
 	$(BIN)/ruff check src tests
@@ -52,11 +72,17 @@ screenshot:  ## render REPORT in headless Chromium into SHOT (installs Debian's 
 		--disable-background-networking --no-first-run --window-size=1400,$(or $(HEIGHT),9000) \
 		--screenshot=$(abspath $(SHOT)) file://$(abspath $(REPORT))
 
-$(STAMP): pyproject.toml constraints.txt
+# The set-up: exactly the versions in requirements.lock (pip and setuptools included), then
+# railwatch itself without resolving anything again.
+$(STAMP): pyproject.toml $(LOCK)
+	@$(PYTHON) -c 'import sys; v = sys.version_info[:2]; v == (3, 11) or print( \
+		f"note: $(LOCK) was compiled for Python 3.11, this is {v[0]}.{v[1]}: if the set-up " \
+		"fails, run make lock first")'
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev,ray]'
+	$(BIN)/python -m pip install --quiet -r $(LOCK)
+	$(BIN)/python -m pip install --quiet --no-deps --no-build-isolation -e .
+	$(BIN)/python -m pip check
 	@touch $@
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) $(LATEST) runs .pytest_cache .mypy_cache .ruff_cache

@@ -32,8 +32,12 @@ def test_onnx_scores_match_pytorch(name: str, data, tmp_path: Path) -> None:  # 
     a, b = det.score(test), onnx.score(test)
     np.testing.assert_allclose(b.instance, a.instance, rtol=TOLERANCE, atol=TOLERANCE)
     np.testing.assert_allclose(b.point, a.point, rtol=TOLERANCE, atol=TOLERANCE)
-    assert onnx.threshold_ == det.threshold_
-    np.testing.assert_array_equal(onnx.predict(test), det.predict(test))
+    assert onnx.threshold_ == det.threshold_  # stored, not recomputed: exact
+    # Predictions agree wherever the score is not within the tolerance of the threshold (there
+    # onnxruntime's other kernels may tip a window either way).
+    clear = np.abs(a.instance - det.threshold_) > TOLERANCE * (1 + abs(det.threshold_))
+    np.testing.assert_array_equal(onnx.predict(test)[clear], det.predict(test)[clear])
+    assert clear.mean() > 0.9
     with pytest.raises(RailwatchError, match="expected 6 channels"):
         onnx.score(test[..., :2])
 

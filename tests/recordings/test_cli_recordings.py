@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from railwatch.cli import main
+from railwatch.deploy.onnx import TOLERANCE
 from railwatch.recordings.pipeline import load_recording_model, read_events
 from railwatch.recordings.readers import Chunk, Recording
 from railwatch.recordings.stream import StreamingDetector
@@ -25,6 +26,26 @@ def match(peaks: np.ndarray, truth: np.ndarray, tol: float = 0.25) -> tuple[floa
     found = np.mean([np.any(np.abs(peaks - t) <= tol) for t in truth])
     false = int(sum(not np.any(np.abs(truth - p) <= tol) for p in peaks))
     return float(found), false
+
+
+def assert_same_events(got: list[dict], want: list[dict], rtol: float) -> None:  # type: ignore[type-arg]
+    """The same events, up to scores that differ by ``rtol`` (other batching or kernels).
+
+    An event whose peak clears the threshold by more than that margin is in both lists, on the
+    same channel, over the same span (to one sample at 100 Hz); only an event that barely
+    crosses the threshold may be missing from one side.
+    """
+
+    def clear(e: dict) -> bool:  # type: ignore[type-arg]
+        return bool(e["score"] > e["threshold"] + rtol * (1 + abs(e["threshold"])))
+
+    for a, b, side in ((got, want, "missing"), (want, got, "extra")):
+        for e in filter(clear, a):
+            twins = [f for f in b if f["channel"] == e["channel"]
+                     and abs(f["start_s"] - e["start_s"]) <= 0.011
+                     and abs(f["end_s"] - e["end_s"]) <= 0.011]
+            assert twins, f"{side} event {e}"
+    assert sum(map(clear, got)) >= 0.9 * len(want) > 0
 
 
 @pytest.fixture(scope="module")
@@ -70,16 +91,14 @@ def test_train_and_detect_find_the_defects(runs: Path) -> None:
                         chunk.speed[part], chunk.position[part])
             streamed += stream.push(sub)
     streamed += stream.close()
-    assert [(round(e.start_s, 4), round(e.peak_s, 4), e.channel) for e in streamed] == [
-        (round(e["start_s"], 4), round(e["peak_s"], 4), e["channel"]) for e in events]
+    assert_same_events([e.to_dict() for e in streamed], events, rtol=1e-5)
 
     # The ONNX export (network in onnxruntime) finds the same events.
     onnx_model, onnx_events = runs / "model.onnx", runs / "events-onnx.csv"
     assert main(["-q", "export", "--model", str(model), "--out", str(onnx_model)]) == 0
     assert main(["-q", "detect", "--model", str(onnx_model), "--recording",
                  str(runs / "test.parquet"), "--out", str(onnx_events)]) == 0
-    assert [(e["peak_s"], e["channel"]) for e in read_events(onnx_events)] == [
-        (e["peak_s"], e["channel"]) for e in events]
+    assert_same_events(read_events(onnx_events), events, rtol=TOLERANCE)
 
 
 def test_recordings_cli_errors(runs: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
