@@ -1,12 +1,35 @@
-"""Atomic file output: a result file is either complete or absent, never half-written."""
+"""Atomic file output: a result file is either complete or absent, never half-written.
+
+The file is written under a temporary name beside its destination (``.<stem>.<random><suffix>``),
+flushed to disk (``fsync``) and renamed into place, and the folder's entry is flushed too: a
+process killed at any point leaves the old file or the new one, and so does a power cut on a
+vehicle computer, as far as the file system keeps its promises about ``fsync`` and ``rename``.
+A killed writer can leave its temporary file behind; :func:`remove_stale_temporaries` clears
+those where only one writer works on a folder (the benchmark's result store, under its lock).
+"""
 
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+
+def fsync_path(path: str | os.PathLike[str]) -> None:
+    """Flush a file's or a folder's content to disk (a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems refuse fsync on folders
+        pass
+    finally:
+        os.close(fd)
 
 
 @contextmanager
@@ -29,7 +52,33 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the file normal permissions
+        fsync_path(tmp)
         os.replace(tmp, path)
+        fsync_path(path.parent)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+#: The names :func:`atomic_path` gives its temporary files: ``.<stem>.<8 of mkstemp's>.<suffix>``.
+_TEMPORARY = re.compile(r"^\..+\.[a-z0-9_]{8}(\.[A-Za-z0-9]+)?$")
+
+
+def remove_stale_temporaries(folder: str | os.PathLike[str]) -> int:
+    """Delete the temporary files :func:`atomic_path` left in ``folder`` (killed writers).
+
+    Only for a folder that no other process is writing into at the same time. Returns the count.
+
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> for name in (".results.k2j_9xq1.json", ".gitignore", "results.json"):
+    ...     _ = (d / name).write_text("")
+    >>> remove_stale_temporaries(d), sorted(p.name for p in d.iterdir())
+    (1, ['.gitignore', 'results.json'])
+    """
+    count = 0
+    for p in Path(folder).glob(".*"):
+        if p.is_file() and _TEMPORARY.match(p.name):
+            p.unlink(missing_ok=True)
+            count += 1
+    return count

@@ -193,14 +193,15 @@ def _rate(value: str) -> float | None:
 
 
 def _progress_seconds(total_s: float, desc: str) -> Any:
-    """A progress bar counting seconds of recording (hidden with -q or off a terminal)."""
-    from tqdm.auto import tqdm
+    """Progress counting seconds of recording: a bar on a terminal, a log line every 10 s
+    elsewhere (hidden with -q)."""
+    from railwatch.progress import Progress
 
     ctx = click.get_current_context()
-    quiet = not (ctx.find_root().obj or {}).get("progress", True)
-    return tqdm(total=round(total_s, 1), desc=desc, unit="s", unit_scale=True,
-                disable=True if quiet else None, bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s "
-                "of recording [{elapsed}<{remaining}]")
+    return Progress(round(total_s, 1), desc, "s of recording", every_s=10.0,
+                    enabled=(ctx.find_root().obj or {}).get("progress", True), unit_scale=True,
+                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s of recording "
+                               "[{elapsed}<{remaining}]")
 
 
 @cli.command(epilog="""\b
@@ -582,7 +583,7 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
     """
     from railwatch.bench.outputs import write_report
     from railwatch.bench.presets import load_preset
-    from railwatch.bench.run import cells, run_grid
+    from railwatch.bench.run import ResultStore, cells, run_grid
 
     if retime and executor != "local":
         raise RailwatchError("--retime measures on this machine: leave out --executor")
@@ -595,9 +596,10 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
     out.mkdir(parents=True, exist_ok=True)
     total = len(cells(p))
     started = time.perf_counter()
-    from tqdm.auto import tqdm
+    from railwatch.progress import Progress
 
-    bar = tqdm(total=total, desc="bench", unit="cell", disable=None if obj["progress"] else True)
+    # A line per finished cell without a terminal (make run > log), a bar on one.
+    bar = Progress(total, "bench", "cells", enabled=obj["progress"], every_s=0.0)
     reused = 0
 
     def on_cell(cell: Any, record: dict[str, Any] | None, done: int, n: int) -> None:
@@ -605,26 +607,26 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
         if record is None:
             reused += 1
         else:
-            bar.set_postfix_str(f"{cell.key}: AUC {record['auc_instance']:.3f}", refresh=False)
-        bar.update(1)
+            bar.set_postfix_str(f"{cell.key} AUC {record['auc_instance']:.3f}")
+        bar.update(1, timed=record is not None)
 
-    if retime:
-        from railwatch.bench.run import ResultStore
-        from railwatch.bench.run import retime as retime_cells
+    store = ResultStore(out)
+    with store.lock(), bar:  # one run at a time in OUT, its report included
+        if retime:
+            from railwatch.bench.run import retime as retime_cells
 
-        store = ResultStore(out)
-        missing = [c.key for c in cells(p) if not store.done(p, c)]
-        if missing:
-            raise RailwatchError(f"{len(missing)} cells of this grid are not finished (e.g. "
-                                 f"{missing[0]}): run without --retime first")
-        bar.set_description("retime")
-        count = retime_cells(p, out, on_cell=lambda *_: bar.update(1))
-        reused = total - count
-        records = run_grid(p, out)  # every cell is finished: this only reads them
-    else:
-        records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
-    bar.close()
-    report = write_report(out, p, records, wall_s=time.perf_counter() - started)
+            missing = [c.key for c in cells(p) if not store.done(p, c)]
+            if missing:
+                raise RailwatchError(f"{len(missing)} cells of this grid are not finished (e.g. "
+                                     f"{missing[0]}): run without --retime first")
+            bar.set_description("retime")
+            count = retime_cells(p, out, on_cell=lambda *_: bar.update(1))
+            reused = total - count
+            records = run_grid(p, out)  # every cell is finished: this only reads them
+        else:
+            records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
+        bar.close()
+        report = write_report(out, p, records, wall_s=time.perf_counter() - started)
     if obj["progress"]:
         _summary(records, p.detectors)
     info(f"{total} cells ({reused} reused from an earlier run) in "

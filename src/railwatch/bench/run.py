@@ -18,11 +18,11 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from railwatch.atomic import atomic_path
+from railwatch.atomic import atomic_path, remove_stale_temporaries
 from railwatch.bench.presets import Preset
 from railwatch.synthetic import SPEC_VERSION, SyntheticSet, generate
 
@@ -214,28 +214,62 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
 
 # ----------------------------------------------------------------------------- the store
 class ResultStore:
-    """Finished cells on disk: ``cells/<key>.json`` (record) and ``cells/<key>.npz`` (arrays)."""
+    """Finished cells on disk: ``cells/<key>.json`` (record) and ``cells/<key>.npz`` (arrays).
+
+    Both are written atomically, the arrays first; the record, written last, marks the cell done
+    and holds the SHA-256 of the arrays file, so a cell whose files were damaged afterwards (or
+    whose arrays belong to another run) is computed again instead of being reused. One run at a
+    time writes into a folder: :meth:`lock` takes ``OUT/.lock`` (released by the system when the
+    process dies, however it dies) and clears what killed runs left half-written.
+    """
 
     def __init__(self, out: Path) -> None:
         self.out = out
         self.dir = out / "cells"
         self.cache = out / "cache"
 
+    def lock(self) -> Any:
+        """Hold the folder for this process (a context manager); one-line error if taken."""
+        return _FolderLock(self.out, self._clean)
+
+    def _clean(self) -> None:
+        """Remove temporary files and folders of killed runs (safe: we hold the lock)."""
+        removed = sum(remove_stale_temporaries(d) for d in (self.out, self.dir, self.cache)
+                      if d.is_dir())
+        models = self.cache / "models"
+        if models.is_dir():
+            for stale in models.glob(".*"):
+                shutil.rmtree(stale, ignore_errors=True)
+                removed += 1
+        if removed:
+            log.info("removed %d temporary file(s) left by an interrupted run", removed)
+
     def done(self, preset: Preset, cell: Cell) -> bool:
-        path = self.dir / f"{cell.key}.json"
-        if not path.exists() or not (self.dir / f"{cell.key}.npz").exists():
+        """Whether ``cell`` is finished, for this preset, with intact files."""
+        path, arrays = self.dir / f"{cell.key}.json", self.dir / f"{cell.key}.npz"
+        if not path.exists():
             return False
         try:
-            return bool(json.loads(path.read_text()).get("fingerprint") ==
-                        fingerprint(preset, cell))
-        except (OSError, json.JSONDecodeError):
+            record = json.loads(path.read_text())
+            if record.get("fingerprint") != fingerprint(preset, cell):
+                return False
+            if "arrays_sha256" not in record:
+                log.info("computing %s again: written by an older railwatch", cell.key)
+                return False
+            if record["arrays_sha256"] != _sha256(arrays):
+                raise ValueError("its arrays file does not match its record")
+            return True
+        except (OSError, ValueError, AttributeError) as e:
+            log.warning("computing %s again: its result files are damaged (%s)", cell.key,
+                        " ".join(str(e).split())[:120])
             return False
 
     def write(self, cell: Cell, record: dict[str, Any], arrays: dict[str, Any]) -> None:
         self.dir.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.dir / f"{cell.key}.npz") as tmp, open(tmp, "wb") as fh:
+        target = self.dir / f"{cell.key}.npz"
+        with atomic_path(target) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        self.write_record(cell, record)  # written last: marks it done
+        self.write_record(cell, {**record, "arrays_sha256": _sha256(target)})  # marks it done
 
     def write_record(self, cell: Cell, record: dict[str, Any]) -> None:
         """Write (or replace) a cell's record; a finished cell's arrays stay."""
@@ -248,6 +282,67 @@ class ResultStore:
     def arrays(self, cell: Cell) -> dict[str, Any]:
         with np.load(self.dir / f"{cell.key}.npz", allow_pickle=False) as f:
             return {k: f[k] for k in f.files}
+
+
+def _sha256(path: Path) -> str:
+    """Hex digest of a file's bytes (ValueError-free: a missing file raises OSError)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+class _FolderLock:
+    """An exclusive ``flock`` on ``folder/.lock`` for the life of a ``with`` block; re-entrant
+    in one process (the CLI holds it around a run and its report, ``run_grid`` inside)."""
+
+    _held: ClassVar[dict[Path, int]] = {}
+
+    def __init__(self, folder: Path, on_acquire: Callable[[], None]) -> None:
+        self.path = (folder / ".lock").resolve()
+        self.on_acquire = on_acquire
+        self.fh: Any = None
+
+    def __enter__(self) -> _FolderLock:
+        import fcntl
+
+        if self.path in self._held:
+            self._held[self.path] += 1
+            return self
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.fh = open(self.path, "a+")
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self.fh.seek(0)
+            holder = self.fh.read().strip() or "another process"
+            self.fh.close()
+            from railwatch.errors import RailwatchError
+
+            raise RailwatchError(f"{self.path.parent} is in use by another railwatch run "
+                                 f"({holder}): wait for it to finish or give another --out") \
+                from None
+        self.fh.seek(0)
+        self.fh.truncate()
+        self.fh.write(f"pid {os.getpid()} on {platform.node()}\n")
+        self.fh.flush()
+        self._held[self.path] = 1
+        try:
+            self.on_acquire()
+        except BaseException:
+            self.__exit__()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import fcntl
+
+        self._held[self.path] -= 1
+        if self._held[self.path] == 0 and self.fh is not None:
+            del self._held[self.path]
+            fcntl.flock(self.fh, fcntl.LOCK_UN)
+            self.fh.close()
 
 
 def _json_default(value: Any) -> Any:
@@ -327,6 +422,14 @@ def run_grid(
     None for a cell found finished on disk).
     """
     store = ResultStore(out)
+    with store.lock():
+        return _run_grid(store, preset, executor, address, on_cell)
+
+
+def _run_grid(
+    store: ResultStore, preset: Preset, executor: str, address: str | None,
+    on_cell: Callable[[Cell, dict[str, Any] | None, int, int], None] | None,
+) -> list[dict[str, Any]]:
     grid = cells(preset)
     todo = [c for c in grid if not store.done(preset, c)]
     done = len(grid) - len(todo)
@@ -363,13 +466,19 @@ def retime(preset: Preset, out: Path,
     measured again (median of :data:`RETIME_REPEATS` after a warm-up batch) and the record notes
     the date (``score_retimed``). Cells without a saved model are left as they are.
     """
+    store = ResultStore(out)
+    with store.lock():
+        return _retime(store, preset, on_cell)
+
+
+def _retime(store: ResultStore, preset: Preset,
+            on_cell: Callable[[Cell, dict[str, Any] | None, int, int], None] | None) -> int:
     import datetime
     from dataclasses import replace
 
     from railwatch.detectors.base import load_detector
     from railwatch.evaluation.metrics import score_seconds
 
-    store = ResultStore(out)
     grid = [c for c in cells(preset) if store.done(preset, c)]
     count = 0
     for i, cell in enumerate(grid):

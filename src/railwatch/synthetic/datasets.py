@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from tqdm.auto import tqdm
 
 from railwatch.atomic import atomic_path
+from railwatch.progress import Progress
 from railwatch.synthetic import components as comp
 from railwatch.synthetic.anomalies import Anomalies, sample_anomalies
 from railwatch.synthetic.stages import (
@@ -167,9 +167,9 @@ def generate(
     # numpy releases the GIL in its ufuncs, so threads render chunks in parallel.
     with ThreadPoolExecutor(max_workers=min(n_chunks, _n_workers())) as pool:
         jobs = pool.map(render_chunk, range(n_chunks))
-        for _ in tqdm(jobs, total=n_chunks, desc=f"stage {cfg.number}", unit="chunk",
-                      disable=None if progress else True):  # None: off when not a TTY
-            pass
+        with Progress(n_chunks, f"stage {cfg.number}", "chunks", enabled=progress) as bar:
+            for _ in jobs:
+                bar.update(1)
 
     meta = {
         "stage": cfg.number, "stage_name": cfg.name, "seed": seed, "fs": fs, "n": n,
