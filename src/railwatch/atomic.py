@@ -1,4 +1,5 @@
-"""Atomic file output: a result file is either complete or absent, never half-written.
+"""Atomic file output: a result file is either complete or absent, never half-written; and
+the checksum that tells a damaged file from the one written.
 
 The file is written under a temporary name beside its destination (``.<stem>.<random><suffix>``),
 flushed to disk (``fsync``) and renamed into place, and the folder's entry is flushed too: a
@@ -10,12 +11,23 @@ those where only one writer works on a folder (the benchmark's result store, und
 
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+
+def sha256_file(path: str | os.PathLike[str]) -> str:
+    """Hex SHA-256 of a file's bytes, read in blocks (model folders and result stores record it
+    to tell a damaged or replaced file from the one they wrote)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def fsync_path(path: str | os.PathLike[str]) -> None:

@@ -17,7 +17,7 @@ import click
 import numpy as np
 
 from railwatch import __version__
-from railwatch.errors import RailwatchError
+from railwatch.errors import RailwatchError, one_line
 
 log = logging.getLogger("railwatch")
 
@@ -396,7 +396,11 @@ def export(model: Path, out: Path) -> None:
     writable_file(out)
     started = time.perf_counter()
     export_onnx(model, out)
-    load_onnx(out)  # fails now, not onboard, if the file does not load
+    try:
+        load_onnx(out)  # fails now, not onboard, if the file does not load
+    except RailwatchError:
+        out.unlink(missing_ok=True)  # no file that looks exported but does not load
+        raise
     info(f"exported {model} to {out} ({out.stat().st_size / 1e6:.2f} MB) in "
          f"{time.perf_counter() - started:.1f} s")
 
@@ -539,7 +543,7 @@ def load_windows_like(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
     except RailwatchError:
         raise
     except Exception as e:  # noqa: BLE001
-        raise RailwatchError(f"cannot read {path}: {_one_line(e)[:160]}") from None
+        raise RailwatchError(f"cannot read {path}: {one_line(e)[:160]}") from None
 
 
 # ----------------------------------------------------------------------------- bench
@@ -670,18 +674,14 @@ def main(argv: list[str] | None = None) -> int:
     except (RailwatchError, ValueError, OSError) as e:
         if os.environ.get("RAILWATCH_DEBUG"):
             raise
-        click.echo(f"railwatch: error: {_one_line(e)}", err=True)
+        click.echo(f"railwatch: error: {one_line(e)}", err=True)
         return 1
     except Exception as e:  # noqa: BLE001 - the user gets one line, the debug flag the traceback
         if os.environ.get("RAILWATCH_DEBUG"):
             raise
-        click.echo(f"railwatch: internal error: {type(e).__name__}: {_one_line(e)} "
+        click.echo(f"railwatch: internal error: {type(e).__name__}: {one_line(e)} "
                    "(set RAILWATCH_DEBUG=1 for the traceback and please report it)", err=True)
         return 1
-
-
-def _one_line(e: BaseException) -> str:
-    return " ".join(str(e).split()) or type(e).__name__
 
 
 if __name__ == "__main__":

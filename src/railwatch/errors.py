@@ -3,3 +3,8 @@
 
 class RailwatchError(Exception):
     """Bad input or a bad state the user can fix; the message says what and how."""
+
+
+def one_line(e: BaseException) -> str:
+    """An exception's message on one line (white space folded), or its type's name."""
+    return " ".join(str(e).split()) or type(e).__name__

@@ -52,6 +52,7 @@ class Progress:
         self.postfix = ""
         self.started = time.monotonic()
         self._last_line = -float("inf")
+        self._logged_n = 0.0
         self._closed = False
         tty = sys.stderr.isatty() if terminal is None else terminal
         self._bar = None
@@ -95,7 +96,7 @@ class Progress:
         return text + (f"; {self.postfix}" if self.postfix else "")
 
     def _log_line(self, now: float) -> None:
-        self._last_line = now
+        self._last_line, self._logged_n = now, self.n
         log.info("%s", self.line())
 
     def close(self) -> None:
@@ -104,7 +105,7 @@ class Progress:
         self._closed = True
         if self._bar is not None:
             self._bar.close()
-        elif self.enabled and self.n < self.total and self.n > 0:
+        elif self.enabled and self._logged_n < self.n < self.total:
             self._log_line(time.monotonic())  # stopped early: say where
 
     def __enter__(self) -> Progress:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from railwatch.atomic import atomic_path, remove_stale_temporaries
+from railwatch.atomic import atomic_path, remove_stale_temporaries, sha256_file
 from railwatch.bench.presets import Preset
 from railwatch.synthetic import SPEC_VERSION, SyntheticSet, generate
 
@@ -256,7 +256,7 @@ class ResultStore:
             if "arrays_sha256" not in record:
                 log.info("computing %s again: written by an older railwatch", cell.key)
                 return False
-            if record["arrays_sha256"] != _sha256(arrays):
+            if record["arrays_sha256"] != sha256_file(arrays):
                 raise ValueError("its arrays file does not match its record")
             return True
         except (OSError, ValueError, AttributeError) as e:
@@ -269,7 +269,7 @@ class ResultStore:
         target = self.dir / f"{cell.key}.npz"
         with atomic_path(target) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-        self.write_record(cell, {**record, "arrays_sha256": _sha256(target)})  # marks it done
+        self.write_record(cell, {**record, "arrays_sha256": sha256_file(target)})  # marks it done
 
     def write_record(self, cell: Cell, record: dict[str, Any]) -> None:
         """Write (or replace) a cell's record; a finished cell's arrays stay."""
@@ -282,15 +282,6 @@ class ResultStore:
     def arrays(self, cell: Cell) -> dict[str, Any]:
         with np.load(self.dir / f"{cell.key}.npz", allow_pickle=False) as f:
             return {k: f[k] for k in f.files}
-
-
-def _sha256(path: Path) -> str:
-    """Hex digest of a file's bytes (ValueError-free: a missing file raises OSError)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 class _FolderLock:

@@ -16,6 +16,7 @@ Agreement with PyTorch is tested to 1e-3 (relative and absolute) on instance and
 from __future__ import annotations
 
 import base64
+import hashlib
 import io
 import json
 import os
@@ -33,10 +34,14 @@ from railwatch.detectors.base import (
     TorchDetector,
     config_from_dict,
     load_detector,
+    verify_restored,
 )
-from railwatch.errors import RailwatchError
+from railwatch.errors import RailwatchError, one_line
 
 META_KEY = "railwatch"
+#: Metadata key of the SHA-256 of the graph and the ``railwatch`` metadata, written at export:
+#: bytes changed on disk (or a graph or metadata swapped in) are refused when the file is loaded.
+CHECKSUM_KEY = "railwatch.sha256"
 TOLERANCE = 1e-3  # relative and absolute, on scores standardised by their training statistics
 OPSET = 17
 
@@ -86,8 +91,10 @@ def export_onnx(model: str | os.PathLike[str] | Detector, out: str | os.PathLike
     import onnx
 
     proto = onnx.load_from_string(buf.getvalue())
-    meta = proto.metadata_props.add()
-    meta.key, meta.value = META_KEY, json.dumps(_metadata(det, keys, folder))
+    text = json.dumps(_metadata(det, keys, folder))
+    for key, value in ((META_KEY, text), (CHECKSUM_KEY, _checksum(proto, text))):
+        meta = proto.metadata_props.add()
+        meta.key, meta.value = key, value
     out = Path(out)
     with atomic_path(out) as tmp:
         onnx.save(proto, tmp)
@@ -101,7 +108,11 @@ def _metadata(det: Detector, keys: list[str], folder: Path | None) -> dict[str, 
     np.savez(stats, **det.stats_)  # type: ignore[arg-type]
     recording = None
     if folder is not None and (folder / "recording.json").is_file():
-        recording = json.loads((folder / "recording.json").read_text())
+        try:
+            recording = json.loads((folder / "recording.json").read_text())
+        except (OSError, ValueError) as e:
+            raise RailwatchError(f"{folder / 'recording.json'} is damaged ({one_line(e)}): "
+                                 "train the model again") from None
     return {
         "detector": det.registry_name or type(det).__name__,
         "config": asdict(det.config), "n_steps": det.n_steps_, "n_channels": det.n_channels_,
@@ -113,52 +124,150 @@ def _metadata(det: Detector, keys: list[str], folder: Path | None) -> dict[str, 
 
 
 class OnnxBackend:
-    """Runs the exported graph: a normalised batch -> raw outputs (the TorchDetector hook)."""
+    """Runs the exported graph: a normalised batch -> raw outputs (the TorchDetector hook).
 
-    def __init__(self, path: Path, keys: list[str], threads: int | None = None) -> None:
+    ``model`` is the file's content when the caller has read it already (it is then not read a
+    second time). Failures of onnxruntime, creating the session or running it, are one-line
+    :class:`RailwatchError` messages naming the file.
+    """
+
+    def __init__(self, path: Path, keys: list[str], threads: int | None = None,
+                 model: bytes | None = None) -> None:
         import onnxruntime as ort
 
+        self.path = Path(path)
         options = ort.SessionOptions()
+        options.log_severity_level = 4  # errors reach the user as one line, not as a log
         if threads:
             options.intra_op_num_threads = threads
             options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), options,
-                                            providers=["CPUExecutionProvider"])
+        try:
+            self.session = ort.InferenceSession(model if model is not None else str(path),
+                                                options, providers=["CPUExecutionProvider"])
+        except Exception as e:  # noqa: BLE001 - onnxruntime raises its own exception types
+            raise RailwatchError(f"{self.path} is damaged: onnxruntime cannot load its network "
+                                 f"({_ort_message(e)})") from None
         self.keys = keys
 
+    def check(self, n_steps: int, n_channels: int) -> None:
+        """The graph takes ``windows`` (batch, n_steps, n_channels) and gives ``keys``."""
+        inputs = {i.name: i.shape for i in self.session.get_inputs()}
+        outputs = {o.name for o in self.session.get_outputs()}
+        if list(inputs) != ["windows"]:
+            raise RailwatchError(f"{self.path}: the network takes {', '.join(inputs) or 'nothing'}"
+                                 ", not windows: it was not exported by railwatch or is damaged")
+        shape = list(inputs["windows"])
+        if len(shape) != 3 or any(isinstance(got, int) and got != want
+                                  for got, want in zip(shape[1:], (n_steps, n_channels),
+                                                       strict=True)):
+            raise RailwatchError(f"{self.path}: the network takes windows of shape {shape}, its "
+                                 f"metadata says (batch, {n_steps}, {n_channels}): it is damaged")
+        missing = [k for k in self.keys if k not in outputs]
+        if missing:
+            raise RailwatchError(f"{self.path}: the network has no output {missing[0]!r} named "
+                                 "in its metadata: it is damaged")
+
     def __call__(self, batch: NDArray[Any]) -> dict[str, NDArray[Any]]:
-        outs = self.session.run(self.keys, {"windows": batch.astype(np.float32, copy=False)})
+        try:
+            outs = self.session.run(self.keys, {"windows": batch.astype(np.float32, copy=False)})
+        except Exception as e:  # noqa: BLE001
+            raise RailwatchError(f"{self.path}: onnxruntime failed to run the network "
+                                 f"({_ort_message(e)})") from None
         return dict(zip(self.keys, outs, strict=True))
 
 
-def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+def _ort_message(e: BaseException) -> str:
+    return f"{type(e).__name__}: {one_line(e)[:200]}"
+
+
+def _checksum(proto: Any, text: str) -> str:
+    """SHA-256 of the graph (as serialised by protobuf) and of the ``railwatch`` metadata."""
+    digest = hashlib.sha256(proto.graph.SerializeToString())
+    digest.update(text.encode())
+    return digest.hexdigest()
+
+
+def _read(path: Path) -> tuple[bytes, Any, dict[str, Any]]:
+    """The file's bytes, its parsed model and its ``railwatch`` metadata, checked."""
     import onnx
 
-    path = Path(path)
     if not path.is_file():
         raise RailwatchError(f"no such ONNX file: {path}")
     try:
-        proto = onnx.load(str(path), load_external_data=False)
+        data = path.read_bytes()
+    except OSError as e:
+        raise RailwatchError(f"cannot read {path}: {e.strerror or one_line(e)}") from None
+    try:
+        proto = onnx.load_from_string(data)
     except Exception as e:  # noqa: BLE001
-        raise RailwatchError(f"{path} is not a readable ONNX file ({type(e).__name__})") from None
+        raise RailwatchError(f"{path} is not a readable ONNX file ({type(e).__name__}): it is "
+                             "damaged or not an ONNX model") from None
     found = {p.key: p.value for p in proto.metadata_props}
     if META_KEY not in found:
-        raise RailwatchError(f"{path} was not exported by railwatch (no '{META_KEY}' metadata)")
-    return dict(json.loads(found[META_KEY]))
+        raise RailwatchError(f"{path} was not exported by railwatch, or is damaged (no "
+                             f"'{META_KEY}' metadata): export it with 'railwatch export'")
+    digest = found.get(CHECKSUM_KEY)  # files exported before checksums have none
+    if digest is not None and digest != _checksum(proto, found[META_KEY]):
+        raise RailwatchError(f"{path} is damaged: its network or metadata differs from what was "
+                             "exported (SHA-256 mismatch): export the model again")
+    try:
+        meta = json.loads(found[META_KEY])
+    except ValueError as e:
+        raise RailwatchError(f"{path}: its '{META_KEY}' metadata is damaged (not JSON: "
+                             f"{one_line(e)})") from None
+    if not isinstance(meta, dict):
+        raise RailwatchError(f"{path}: its '{META_KEY}' metadata is damaged (not a table)")
+    return data, proto, meta
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The ``railwatch`` metadata of an exported file (checked against its checksum)."""
+    return _read(Path(path))[2]
 
 
 def load_onnx(path: str | os.PathLike[str], threads: int | None = None) -> Detector:
-    """A detector whose network runs in onnxruntime; scores like the PyTorch original."""
+    """A detector whose network runs in onnxruntime; scores like the PyTorch original.
+
+    A damaged file (truncated, bytes changed, metadata edited, another graph) is a one-line
+    :class:`RailwatchError` naming it; the returned detector has scored a window.
+    """
     from railwatch.detectors.registry import class_for
 
-    meta = read_metadata(path)
-    cls = class_for(meta["detector"])
-    det = cls(config_from_dict(cls.Config, meta["config"]))
-    det.registry_name = meta["detector"]
-    det.n_steps_, det.n_channels_ = int(meta["n_steps"]), int(meta["n_channels"])
-    with np.load(io.BytesIO(base64.b64decode(meta["stats"])), allow_pickle=False) as f:
-        det.stats_ = {k: f[k] for k in f.files}
-    det.threshold_ = float(det.stats_["threshold"])
-    det.device_ = torch.device("cpu")  # type: ignore[attr-defined]
-    det.backend_ = OnnxBackend(Path(path), list(meta["outputs"]), threads)  # type: ignore[attr-defined]
+    path = Path(path)
+    data, _, meta = _read(path)
+    try:
+        cls = class_for(meta["detector"])
+        if not issubclass(cls, TorchDetector):
+            raise RailwatchError(f"its metadata names {meta['detector']}, which has no network")
+        try:
+            config = config_from_dict(cls.Config, meta["config"])
+        except RailwatchError as e:
+            raise RailwatchError(f"its config does not fit {meta['detector']} ({e})") from None
+        det = cls(config)
+        det.registry_name = meta["detector"]
+        det.n_steps_, det.n_channels_ = _count(meta, "n_steps"), _count(meta, "n_channels")
+        keys = meta["outputs"]
+        if not isinstance(keys, list) or not keys or not all(isinstance(k, str) for k in keys):
+            raise RailwatchError("its metadata lists no outputs")
+        stats = base64.b64decode(meta["stats"], validate=True)
+        with np.load(io.BytesIO(stats), allow_pickle=False) as f:
+            det.stats_ = {k: f[k] for k in f.files}
+        det.device_ = torch.device("cpu")
+        backend = OnnxBackend(path, keys, threads, model=data)
+        backend.check(det.n_steps_, det.n_channels_)
+        det.backend_ = backend
+        verify_restored(det)
+    except RailwatchError as e:
+        message = one_line(e)
+        raise RailwatchError(message if str(path) in message else f"{path}: {message}") from None
+    except Exception as e:  # noqa: BLE001 - damaged metadata, whatever the exception
+        raise RailwatchError(f"{path}: its '{META_KEY}' metadata is damaged "
+                             f"({type(e).__name__}: {one_line(e)[:160]})") from None
     return det
+
+
+def _count(meta: dict[str, Any], key: str) -> int:
+    value = meta[key]
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise RailwatchError(f"its metadata gives {key} = {value!r}, not a positive count")
+    return value

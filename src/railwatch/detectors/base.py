@@ -22,6 +22,7 @@ import logging
 import math
 import os
 import shutil
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -32,9 +33,10 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from tqdm.auto import tqdm
 
-from railwatch.errors import RailwatchError
+from railwatch.atomic import fsync_path, sha256_file
+from railwatch.errors import RailwatchError, one_line
+from railwatch.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -313,6 +315,16 @@ class Detector(ABC):
 
         ``extra_files`` (name -> text) are written into the same directory, in the same atomic
         step: for example the recording layout of a model trained on recordings.
+
+        The folder is written as ``.NAME.tmp-PID`` beside ``path``, every file and the folder
+        flushed to disk (``fsync``), then swapped in: the old model, if any, is renamed to
+        ``.NAME.old-PID``, the new one to ``path``, the old one deleted. A process killed at
+        any point (or a power cut, as far as the file system keeps its ``fsync`` promises)
+        leaves the old model or the new one at ``path``; killed between the two renames, it
+        leaves no ``path`` but the previous model in ``.NAME.old-PID``, which
+        :func:`load_detector` points to. Leftovers of writers that are no longer running are
+        removed by the next save. ``detector.json`` records the SHA-256 of every other file,
+        so that a damaged or replaced file is refused when the model is loaded.
         """
         self._check_fitted()
         path = Path(path)
@@ -322,46 +334,79 @@ class Detector(ABC):
             )
         if not path.parent.is_dir():
             raise RailwatchError(f"cannot write {path}: folder {path.parent} does not exist")
+        for stale in _stale_siblings(path, "tmp"):  # half-written by a killed save
+            shutil.rmtree(stale, ignore_errors=True)
         tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        old = path.with_name(f".{path.name}.old-{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
+        moved = False
         try:
+            for name, text in (extra_files or {}).items():
+                if name in _MODEL_FILES or Path(name).name != name or name.startswith("."):
+                    raise RailwatchError(f"cannot save an extra file named {name!r}")
+                (tmp / name).write_text(text)
+            np.savez(tmp / "stats.npz", **self.stats_)  # type: ignore[arg-type]
+            state = self._state_dict()
+            if state is not None:
+                torch.save(state, tmp / "weights.pt")
             header = {
                 "format": FORMAT, "format_version": FORMAT_VERSION,
                 "detector": self.registry_name or type(self).__name__,
                 "class": f"{type(self).__module__}.{type(self).__qualname__}",
                 "config": asdict(self.config), "n_steps": self.n_steps_,
                 "n_channels": self.n_channels_,
+                CHECKSUMS: {p.name: sha256_file(p) for p in sorted(tmp.iterdir())},
             }
             (tmp / "detector.json").write_text(json.dumps(header, indent=2))
-            for name, text in (extra_files or {}).items():
-                (tmp / name).write_text(text)
-            np.savez(tmp / "stats.npz", **self.stats_)  # type: ignore[arg-type]
-            state = self._state_dict()
-            if state is not None:
-                torch.save(state, tmp / "weights.pt")
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            for p in tmp.iterdir():
+                fsync_path(p)
+            fsync_path(tmp)
             if path.exists():
-                path.rename(old)
-            tmp.rename(path)
-            shutil.rmtree(old, ignore_errors=True)
+                shutil.rmtree(old, ignore_errors=True)  # a dead namesake's, not ours
+                os.rename(path, old)
+                moved = True
+            os.rename(tmp, path)
+            moved = False
+            fsync_path(path.parent)
         except BaseException:
+            if moved and not path.exists():
+                os.rename(old, path)  # put the old model back
             shutil.rmtree(tmp, ignore_errors=True)
             raise
+        shutil.rmtree(old, ignore_errors=True)
+        for stale in _stale_siblings(path, "old"):  # a previous model a killed save set aside
+            shutil.rmtree(stale, ignore_errors=True)
         return path
 
     @classmethod
     def _from_saved(cls, header: dict[str, Any], path: Path) -> Detector:
-        config = config_from_dict(cls.Config, header["config"])
+        """The detector saved in ``path`` whose ``detector.json`` is ``header`` (checked)."""
+        name = header["detector"]
+        try:
+            config = config_from_dict(cls.Config, header["config"])
+        except RailwatchError as e:
+            raise RailwatchError(f"detector.json: the config does not fit {name} ({e})") from None
         det = cls(config)
-        det.n_steps_, det.n_channels_ = int(header["n_steps"]), int(header["n_channels"])
-        with np.load(path / "stats.npz", allow_pickle=False) as f:
-            det.stats_ = {k: f[k] for k in f.files}
-        det.threshold_ = float(det.stats_["threshold"])
+        det.n_steps_, det.n_channels_ = _count(header, "n_steps"), _count(header, "n_channels")
+        if not (path / "stats.npz").is_file():
+            raise RailwatchError("stats.npz is missing")
+        try:
+            with np.load(path / "stats.npz", allow_pickle=False) as f:
+                det.stats_ = {k: f[k] for k in f.files}
+        except Exception as e:  # noqa: BLE001 - zip, npy or pickle errors alike
+            raise RailwatchError(f"stats.npz is damaged ({type(e).__name__}: "
+                                 f"{one_line(e)[:120]})") from None
         weights = path / "weights.pt"
-        state = torch.load(weights, map_location="cpu", weights_only=True) \
-            if weights.exists() else None
+        state = None
+        if weights.exists():
+            try:
+                state = torch.load(weights, map_location="cpu", weights_only=True)
+            except Exception as e:  # noqa: BLE001 - torch's message is about pickle safety
+                raise RailwatchError(f"weights.pt is damaged or holds no network weights "
+                                     f"({type(e).__name__})") from None
         det._load_state(state)
+        verify_restored(det)
         return det
 
     # -- helpers -------------------------------------------------------------------------
@@ -396,35 +441,152 @@ class Detector(ABC):
 
 
 def load_detector(path: str | os.PathLike[str]) -> Detector:
-    """Load a detector saved with :meth:`Detector.save`; any detector class, by its header."""
+    """Load a detector saved with :meth:`Detector.save`; any detector class, by its header.
+
+    Every way a model folder can be damaged (a file missing, truncated, replaced or edited; a
+    header naming another detector, a newer format or settings this version does not know) is
+    a one-line :class:`RailwatchError` naming the folder; the loaded detector has scored a
+    window, so that it does not fail later, in the middle of a recording.
+    """
     from railwatch.detectors.registry import class_for
 
     path = Path(path)
     if not path.is_dir():
+        previous = [p for p in _stale_siblings(path, "old") if (p / "detector.json").is_file()]
+        if previous:
+            raise RailwatchError(
+                f"no model directory at {path}; a save that was interrupted left the previous "
+                f"model in {previous[-1]}: rename it to {path.name} to use it, or train again")
         raise RailwatchError(f"no model directory at {path}")
     if not (path / "detector.json").is_file():
         raise RailwatchError(f"{path} is not a railwatch model directory (no detector.json): "
                              "give the folder written by 'railwatch train'")
     try:
         header = json.loads((path / "detector.json").read_text())
-        if header.get("format") != FORMAT:
-            raise ValueError("not a railwatch model")
-        if header.get("format_version", 0) > FORMAT_VERSION:
+        if not isinstance(header, dict) or header.get("format") != FORMAT:
+            raise ValueError("detector.json is not a railwatch model header")
+        version = header.get("format_version", 0)
+        if not isinstance(version, int) or isinstance(version, bool):
+            raise ValueError(f"detector.json: format_version {version!r} is not a number")
+        if version > FORMAT_VERSION:
             raise RailwatchError(
-                f"{path} was saved by a newer railwatch (format {header['format_version']}): "
-                "upgrade railwatch"
+                f"{path} was saved by a newer railwatch (format {version}, this one reads up "
+                f"to {FORMAT_VERSION}): upgrade railwatch"
             )
+        _verify_checksums(path, header)
         cls = class_for(header["detector"])
         det = cls._from_saved(header, path)
         det.registry_name = header["detector"]
         return det
-    except RailwatchError:
-        raise
+    except RailwatchError as e:
+        message = one_line(e)
+        raise RailwatchError(message if str(path) in message else f"{path}: {message}") from None
     except Exception as e:  # noqa: BLE001 - any failure to read a saved model is the same to the user
         raise RailwatchError(
             f"{path} is not a readable railwatch model directory ({type(e).__name__}: "
-            f"{' '.join(str(e).split())[:200]})"
+            f"{one_line(e)[:200]})"
         ) from None
+
+
+def verify_restored(det: Detector) -> None:
+    """Check a detector rebuilt from a file (a model folder, an ONNX export) before it is used.
+
+    Sets ``threshold_`` from ``stats_``; checks the input normalisation's shape; then scores one
+    window of zeros, so that a statistic missing from the file or of the wrong shape, or weights
+    that do not fit, fail now, in one line, instead of in the middle of a recording. Raises
+    :class:`RailwatchError` without naming the file (the caller adds it).
+    """
+    stats = det.stats_
+    if "threshold" not in stats:
+        raise RailwatchError("the fitted statistics lack the threshold")
+    if np.size(stats["threshold"]) != 1 or stats["threshold"].dtype.kind not in "fiu":
+        raise RailwatchError("the fitted threshold is not a number")
+    det.threshold_ = float(stats["threshold"])
+    if det.n_steps_ < 1 or det.n_channels_ < 1:
+        raise RailwatchError(f"windows of {det.n_steps_} x {det.n_channels_} are impossible")
+    if det.normalize:
+        for key in ("input_mean", "input_std"):
+            if key not in stats:
+                raise RailwatchError(f"the fitted statistics lack {key}")
+            if stats[key].shape != (det.n_channels_,):
+                raise RailwatchError(
+                    f"the fitted {key} has shape {stats[key].shape}, the model "
+                    f"{_plural(det.n_channels_, 'channel')}")
+    probe = np.zeros((1, det.n_steps_, det.n_channels_), dtype=np.float32)
+    context = {k: np.ones_like(probe) for k in det.needs}
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            scores = det.score(probe, context)
+        if scores.instance.shape != (1,) or scores.channel.shape != probe.shape:
+            raise ValueError(f"scores of shape {scores.channel.shape} for windows {probe.shape}")
+    except RailwatchError:
+        raise
+    except Exception as e:  # noqa: BLE001 - whatever breaks, the saved model is damaged
+        raise RailwatchError(f"the saved model does not score a window ({type(e).__name__}: "
+                             f"{one_line(e)[:160]}): it is damaged or was edited") from None
+
+
+#: The files :meth:`Detector.save` writes itself (extra files are named by the caller).
+_MODEL_FILES = ("detector.json", "stats.npz", "weights.pt")
+#: ``detector.json`` key of the SHA-256 of every other file in the folder.
+CHECKSUMS = "sha256"
+
+
+def _verify_checksums(path: Path, header: dict[str, Any]) -> None:
+    """Every file listed in ``detector.json`` present and unchanged (models saved before
+    checksums were recorded list none)."""
+    sums = header.get(CHECKSUMS)
+    if sums is None:
+        return
+    if not isinstance(sums, dict):
+        raise ValueError(f"detector.json: {CHECKSUMS} is not a table of files")
+    for name, digest in sums.items():
+        if Path(name).name != name or name in ("", ".", ".."):
+            raise ValueError(f"detector.json lists a file outside the folder: {name!r}")
+        if not (path / name).is_file():
+            raise RailwatchError(f"{path} is not a complete railwatch model: {name} is missing")
+        if sha256_file(path / name) != digest:
+            raise RailwatchError(
+                f"{path} is not a readable railwatch model directory: {name} is damaged or was "
+                "replaced (its SHA-256 differs from the one saved in detector.json): train the "
+                "model again or restore the folder from a copy")
+
+
+def _stale_siblings(path: Path, kind: str) -> list[Path]:
+    """``.NAME.<kind>-PID`` folders beside ``path`` left by saves whose process is gone."""
+    prefix = f".{path.name}.{kind}-"
+    try:
+        siblings = sorted(path.parent.iterdir())
+    except OSError:
+        return []
+    found = []
+    for p in siblings:
+        pid = p.name[len(prefix):]
+        if p.name.startswith(prefix) and pid.isdigit() and p.is_dir() and not p.is_symlink() \
+                and int(pid) != os.getpid() and not _running(int(pid)):
+            found.append(p)
+    return found
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` may still be running (when unsure: yes)."""
+    if os.name != "posix":
+        return True  # os.kill(pid, 0) would terminate it on Windows
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # PermissionError: alive, another user's
+        return True
+    return True
+
+
+def _count(header: dict[str, Any], key: str) -> int:
+    value = header[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise RailwatchError(f"detector.json: {key} must be a whole number, got {value!r}")
+    return value
 
 
 # ----------------------------------------------------------------------------- deep models
@@ -510,16 +672,17 @@ class TorchDetector(Detector):
             gen = torch.Generator().manual_seed(cfg.seed)
             xt = torch.from_numpy(train)
             best, best_state, stale = math.inf, None, 0
-            bar = tqdm(range(cfg.epochs), desc=type(self).__name__, unit="epoch",
-                       disable=None if cfg.progress else True)
-            for epoch in bar:
+            bar = Progress(cfg.epochs, type(self).__name__, "epochs", enabled=cfg.progress,
+                           every_s=0.0)
+            for epoch in range(cfg.epochs):
                 self.model_.train()
                 perm = torch.randperm(len(xt), generator=gen)
                 losses = [self.train_step(xt[perm[i:i + cfg.batch_size]].to(self.device_))
                           for i in range(0, len(xt), cfg.batch_size)]
                 self.on_epoch_end(epoch)
                 val_loss = self._evaluate(val)
-                bar.set_postfix(loss=f"{np.mean(losses):.4f}", val=f"{val_loss:.4f}")
+                bar.set_postfix_str(f"loss {np.mean(losses):.4f}, validation {val_loss:.4f}")
+                bar.update(1)
                 log.debug("epoch %d: train %.5f, validation %.5f", epoch + 1,
                           np.mean(losses), val_loss)
                 if val_loss < best - 1e-6:
@@ -532,6 +695,7 @@ class TorchDetector(Detector):
                         log.info("early stop after epoch %d (validation loss %.5f)", epoch + 1,
                                  best)
                         break
+            bar.close()
             if best_state is not None:
                 self.model_.load_state_dict(best_state)
         self.model_.eval()
@@ -578,13 +742,17 @@ class TorchDetector(Detector):
     def _load_state(self, state: dict[str, torch.Tensor] | None) -> None:
         if state is None:
             raise RailwatchError("the model directory has no weights.pt")
+        if not isinstance(state, Mapping) or not all(
+                isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()):
+            raise RailwatchError("weights.pt does not hold network weights (a state_dict)")
         self.device_ = resolve_device(self.config.device)
         with seeded(self.config.seed):
             self.model_ = self.build(self.n_steps_, self.n_channels_)
         try:
             self.model_.load_state_dict(state)
         except RuntimeError as e:
-            raise RailwatchError(f"saved weights do not fit the model: {str(e)[:200]}") from None
+            raise RailwatchError(f"weights.pt does not fit the {type(self).__name__} network of "
+                                 f"this config: {one_line(e)[:200]}") from None
         self.model_.to(self.device_).eval()
 
 

@@ -14,7 +14,7 @@ import io
 import json
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -125,10 +125,33 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
             f"{model} was trained on windows, not recordings (no {RECORDING_FILE}): train it with "
             "'railwatch train --recordings FILE... --layout LAYOUT'")
     try:
-        return RecordingModel(detector, Layout.from_dict(info["layout"], source),
-                              Preparation(**info["preparation"]), float(info["threshold"]))
-    except (KeyError, TypeError, ValueError) as e:
-        raise RailwatchError(f"{source} is damaged ({e}): train the model again") from None
+        layout = Layout.from_dict(info["layout"], source)
+        prep = _preparation(info["preparation"])
+        prep.check(layout.fs)
+        threshold = float(info["threshold"])
+        if len(layout.channels) != detector.n_channels_:
+            raise ValueError(f"its layout names {len(layout.channels)} channels, the model was "
+                             f"trained on {detector.n_channels_}")
+    except (KeyError, TypeError, ValueError, RailwatchError) as e:
+        what = " ".join(str(e).split()) or type(e).__name__
+        raise RailwatchError(f"{source} is damaged ({what}): train the model again") from None
+    return RecordingModel(detector, layout, prep, threshold)
+
+
+def _preparation(values: Any) -> Preparation:
+    """A :class:`Preparation` from ``recording.json``, every field of the right type."""
+    if not isinstance(values, dict):
+        raise TypeError("its preparation is not a table")
+    known = {f.name for f in fields(Preparation)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise KeyError(f"unknown preparation setting {', '.join(unknown)}")
+    for key, value in values.items():
+        if (value is None and key == "rate") or (isinstance(value, int | float)
+                                                  and not isinstance(value, bool)):
+            continue
+        raise TypeError(f"preparation {key} is {value!r}, not a number")
+    return Preparation(**values)
 
 
 # ----------------------------------------------------------------------------- detection
