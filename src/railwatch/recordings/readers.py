@@ -6,12 +6,19 @@ v7.3 files are HDF5 and stream). Every block is checked on the way: each named c
 numeric and finite; the time column (when named) increasing, at the layout's rate, without gaps.
 Problems are one-line :class:`RailwatchError` messages naming the column and the row (1-based,
 data rows only).
+
+Every failure leaving a :class:`Recording` (opening, counting, reading) is one such line naming
+the file: a damaged file, whatever the library reading it raises, becomes "cannot read FILE as
+FORMAT: reason" (``tests/recordings/test_readers_fuzz.py`` fuzzes this promise).
 """
 
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +31,8 @@ from railwatch.recordings.layout import Layout
 
 FORMATS = {".csv": "csv", ".txt": "csv", ".parquet": "parquet", ".pq": "parquet", ".h5": "hdf5",
            ".hdf5": "hdf5", ".hdf": "hdf5", ".mat": "mat"}
+#: How messages name each format ("cannot read x.mat as a MATLAB file").
+FORMAT_NAMES = {"csv": "CSV", "parquet": "Parquet", "hdf5": "HDF5", "mat": "a MATLAB file"}
 #: Rows per block when streaming (60 s at 2000 Hz).
 CHUNK_ROWS = 120_000
 #: A time step longer than this many sample periods is a gap.
@@ -60,8 +69,9 @@ class Recording:
                 f"cannot read {self.path.name}: unknown format {self.path.suffix or '(none)'}; "
                 f"railwatch reads {', '.join(sorted(set(FORMATS)))}")
         self.format = kind
-        self._source = _SOURCES[kind](self.path, layout)
-        self.n_samples: int = self._source.n_rows()
+        with self._reading():
+            self._source = _SOURCES[kind](self.path, layout)
+            self.n_samples: int = self._source.n_rows()
 
     @property
     def duration_s(self) -> float:
@@ -71,15 +81,29 @@ class Recording:
         """Blocks of at most ``rows`` rows, checked, in order."""
         checker = _TimeChecker(self.layout)
         start = 0
-        try:
+        with self._reading():
             for columns in self._source.blocks(rows):
                 chunk = _make_chunk(columns, self.layout, start)
+                if not len(chunk):  # e.g. a CSV file with a header only
+                    continue
                 checker.check(chunk)
                 start += len(chunk)
                 yield chunk
             checker.finish()
+
+    @contextmanager
+    def _reading(self) -> Iterator[None]:
+        """The boundary: any failure inside becomes one line that names the file."""
+        try:
+            yield
         except RailwatchError as e:
-            raise RailwatchError(f"{self.path.name}: {e}") from None
+            message = " ".join(str(e).splitlines())
+            if self.path.name not in message:
+                message = f"{self.path.name}: {message}"
+            raise RailwatchError(message) from None
+        except Exception as e:  # noqa: BLE001 - a library choking on a damaged or odd file
+            raise RailwatchError(f"cannot read {self.path.name} as "
+                                 f"{FORMAT_NAMES[self.format]}: {_reason(e)}") from e
 
     def read(self) -> Chunk:
         """The whole recording as one chunk."""
@@ -103,6 +127,13 @@ def _make_chunk(columns: dict[str, NDArray[Any]], layout: Layout, start: int) ->
             what = "NaN or empty" if np.isnan(values[bad][0]) else "infinite"
             raise RailwatchError(f"column {name!r} is {what} at row {row} ({int(bad.sum())} such "
                                  "values in this block): clean or cut the recording there")
+    for name in layout.channels:  # finite as float64 but infinite as float32: say so
+        big = np.abs(columns[name]) > np.finfo(np.float32).max
+        if big.any():
+            i = int(np.argmax(big))
+            raise RailwatchError(f"column {name!r} is out of range at row {start + i + 1} "
+                                 f"({columns[name][i]:.6g}; channels are float32, at most "
+                                 f"{np.finfo(np.float32).max:.3g})")
     data = np.stack([columns[c] for c in layout.channels], axis=1).astype(np.float32)
 
     def opt(name: str | None) -> NDArray[np.float64] | None:
@@ -178,10 +209,21 @@ def _numeric(name: str, values: Any, start: int) -> NDArray[np.float64]:
     return converted
 
 
+def _reason(e: BaseException) -> str:
+    """A library's exception as a short line."""
+    return " ".join(str(e).split())[:160] or type(e).__name__
+
+
+def _shown(name: str) -> str:
+    """A name found in a file, as a message shows it: odd ones (blank, control) quoted."""
+    return name if name.isprintable() and name.strip() == name and len(name) <= 60 else (
+        repr(name[:60]))
+
+
 def _missing(path: Path, wanted: tuple[str, ...], present: list[str], what: str) -> None:
     missing = [c for c in wanted if c not in present]
     if missing:
-        shown = ", ".join(present[:12]) + (", ..." if len(present) > 12 else "")
+        shown = ", ".join(map(_shown, present[:12])) + (", ..." if len(present) > 12 else "")
         raise RailwatchError(f"{path.name} has no {what} {', '.join(map(repr, missing))} named in "
                              f"the layout; it has: {shown or 'nothing'}")
 
@@ -205,9 +247,8 @@ class _CSV(_Source):
 
         try:
             header = list(pd.read_csv(path, nrows=0).columns)
-        except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as e:
-            raise RailwatchError(f"cannot read {path} as CSV: {' '.join(str(e).split())[:160]}") \
-                from None
+        except (ValueError, OSError, pd.errors.ParserError) as e:  # UnicodeDecodeError included
+            raise RailwatchError(f"cannot read {path} as CSV: {_reason(e)}") from None
         _missing(path, layout.columns, [str(c) for c in header], "column")
 
     def n_rows(self) -> int:
@@ -228,7 +269,7 @@ class _CSV(_Source):
                 start += len(frame)
         except (ValueError, pd.errors.ParserError) as e:
             raise RailwatchError(f"cannot read {self.path} as CSV near row {start + 1}: "
-                                 f"{' '.join(str(e).split())[:160]}") from None
+                                 f"{_reason(e)}") from None
 
 
 class _Parquet(_Source):
@@ -241,24 +282,45 @@ class _Parquet(_Source):
             # Unbuffered, row group by row group: memory stays flat however long the file is
             # (pre-buffering held ~570 MB for a 60-minute six-channel run, ~230 MB without).
             self.file = pq.ParquetFile(path, pre_buffer=False, buffer_size=1 << 20)
-        except (pa.ArrowInvalid, OSError) as e:
-            raise RailwatchError(f"cannot read {path} as Parquet: "
-                                 f"{' '.join(str(e).split())[:160]}") from None
-        names = list(self.file.schema_arrow.names)
-        _missing(path, layout.columns, names, "column")
-        for c in layout.columns:
-            kind = self.file.schema_arrow.field(c).type
-            if not (pa.types.is_integer(kind) or pa.types.is_floating(kind)):
-                raise RailwatchError(f"column {c!r} is not numeric: its Parquet type is {kind}")
+        except (pa.ArrowException, OSError, ValueError) as e:  # ValueError: UnicodeDecodeError
+            raise RailwatchError(f"cannot read {path} as Parquet: {_reason(e)}") from None
+        try:
+            try:  # a damaged footer may only show when its schema is decoded
+                schema = self.file.schema_arrow
+                names = list(schema.names)
+            except (pa.ArrowException, ValueError) as e:
+                raise RailwatchError(f"cannot read {path} as Parquet: {_reason(e)}") from None
+            _missing(path, layout.columns, names, "column")
+            for c in layout.columns:
+                if names.count(c) > 1:
+                    raise RailwatchError(f"{path.name} has {names.count(c)} columns named {c!r}")
+                kind = schema.field(c).type
+                if not (pa.types.is_integer(kind) or pa.types.is_floating(kind)):
+                    raise RailwatchError(f"column {c!r} is not numeric: its Parquet type is "
+                                         f"{kind}")
+            if self.file.metadata.num_rows < 0:
+                raise RailwatchError(f"cannot read {path} as Parquet: its footer claims "
+                                     f"{self.file.metadata.num_rows} rows")
+        except BaseException:
+            self.file.close()
+            raise
 
     def n_rows(self) -> int:
         return int(self.file.metadata.num_rows)
 
     def blocks(self, rows: int) -> Iterator[dict[str, NDArray[Any]]]:
-        for batch in self.file.iter_batches(batch_size=rows, columns=list(self.layout.columns),
-                                            use_threads=False):
-            yield {c: batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64)
-                   for c in self.layout.columns}
+        import pyarrow as pa
+
+        start = 0
+        try:
+            for batch in self.file.iter_batches(batch_size=rows, columns=list(self.layout.columns),
+                                                use_threads=False):
+                yield {c: batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64)
+                       for c in self.layout.columns}
+                start += batch.num_rows
+        except (pa.ArrowException, OSError, ValueError) as e:  # a damaged page
+            raise RailwatchError(f"cannot read {self.path} as Parquet near row {start + 1}: "
+                                 f"{_reason(e)}") from None
 
 
 class _HDF5(_Source):
@@ -270,26 +332,58 @@ class _HDF5(_Source):
 
         try:
             self.file = h5py.File(path, "r")
-        except OSError as e:
-            raise RailwatchError(f"cannot read {path} as HDF5: {' '.join(str(e).split())[:160]}") \
-                from None
+        except (OSError, ValueError, RuntimeError) as e:
+            raise RailwatchError(f"cannot read {path} as HDF5: {_reason(e)}") from None
+        try:
+            self._open_datasets()
+        except BaseException:
+            self.file.close()
+            raise
+
+    def _open_datasets(self) -> None:
+        import h5py
+
+        path, layout = self.path, self.layout
         present: list[str] = []
-        self.file.visititems(lambda name, obj: present.append(name)
-                             if isinstance(obj, h5py.Dataset) else None)
-        _missing(path, tuple(c.strip("/") for c in layout.columns), present, "dataset")
-        self.datasets = {c: self.file[c.strip("/")] for c in layout.columns}
+        try:  # a damaged object header or B-tree shows here, or where a dataset is opened
+            self.file.visititems(lambda name, obj: present.append(
+                name if isinstance(name, str) else name.decode("utf-8", "backslashreplace"))
+                if isinstance(obj, h5py.Dataset) else None)
+            _missing(path, tuple(c.strip("/") for c in layout.columns), present, "dataset")
+            self.datasets = {c: self.file[c.strip("/")] for c in layout.columns}
+            dtypes = {c: ds.dtype for c, ds in self.datasets.items()}
+        except (RuntimeError, KeyError, ValueError, TypeError, OSError) as e:
+            raise RailwatchError(f"cannot read {path} as HDF5: {_reason(e)}") from None
         lengths = set()
         for c, ds in self.datasets.items():
-            if ds.dtype.kind not in "fiub":
-                raise RailwatchError(f"dataset {c!r} is not numeric (dtype {ds.dtype})")
+            if dtypes[c].kind not in "fiub":
+                raise RailwatchError(f"dataset {c!r} is not numeric (dtype {dtypes[c]})")
             if ds.ndim not in (1, 2) or (ds.ndim == 2 and min(ds.shape) != 1):
                 raise RailwatchError(f"dataset {c!r} has shape {ds.shape}: each name in the "
                                      "layout must be one 1-D column")
             lengths.add(int(np.prod(ds.shape)))
+            self._check_stored(c, ds, dtypes[c].itemsize)
         if len(lengths) > 1:
             raise RailwatchError(f"the layout's datasets in {path.name} differ in length: "
                                  f"{sorted(lengths)}")
         self.length = lengths.pop() if lengths else 0
+
+    def _check_stored(self, name: str, ds: Any, itemsize: int) -> None:
+        """A (damaged) header claiming more values than the file holds is not believed.
+
+        HDF5 reads values never written as the fill value, so such a claim would stream zeros
+        for as long as it says. Uncompressed data kept in this file must fit in it.
+        """
+        plist = ds.id.get_create_plist()
+        if ds.is_virtual or plist.get_external_count() or plist.get_nfilters():
+            return
+        claimed = int(np.prod(ds.shape)) * itemsize
+        size = self.path.stat().st_size
+        if claimed > size:
+            raise RailwatchError(f"dataset {name!r} in {self.path.name} claims "
+                                 f"{int(np.prod(ds.shape)):,} values ({claimed:,} bytes) but the "
+                                 f"file has {size:,} bytes: it is damaged or was not fully "
+                                 "written")
 
     def n_rows(self) -> int:
         return self.length
@@ -299,12 +393,16 @@ class _HDF5(_Source):
             stop = min(start + rows, self.length)
             out = {}
             for c, ds in self.datasets.items():
-                if ds.ndim == 1:
-                    block = ds[start:stop]
-                elif ds.shape[0] > 1:  # a column (n, 1)
-                    block = ds[start:stop, 0]
-                else:  # a row (1, n): how MATLAB v7.3 stores a column vector
-                    block = ds[0, start:stop]
+                try:
+                    if ds.ndim == 1:
+                        block = ds[start:stop]
+                    elif ds.shape[0] > 1:  # a column (n, 1)
+                        block = ds[start:stop, 0]
+                    else:  # a row (1, n): how MATLAB v7.3 stores a column vector
+                        block = ds[0, start:stop]
+                except (OSError, RuntimeError, ValueError) as e:  # a damaged chunk
+                    raise RailwatchError(f"cannot read {self.path} as HDF5: dataset {c!r} near "
+                                         f"row {start + 1}: {_reason(e)}") from None
                 out[c] = np.asarray(block, dtype=np.float64)
             yield out
 
@@ -318,13 +416,16 @@ class _MAT(_Source):
 
         self.hdf5: _HDF5 | None = None
         try:
+            _check_mat5(path, layout.columns)  # what would crash scipy, before it reads
             content = scipy.io.loadmat(path, variable_names=list(layout.columns))
         except NotImplementedError:  # v7.3: HDF5 inside
+            content = None
+        except (ValueError, OSError, TypeError, IndexError, OverflowError, MemoryError,
+                zlib.error, scipy.io.matlab.MatReadError) as e:
+            raise RailwatchError(f"cannot read {path} as a MATLAB file: {_reason(e)}") from None
+        if content is None:
             self.hdf5 = _HDF5(path, layout)
             return
-        except (ValueError, OSError, TypeError, scipy.io.matlab.MatReadError) as e:
-            raise RailwatchError(f"cannot read {path} as a MATLAB file: "
-                                 f"{' '.join(str(e).split())[:160]}") from None
         _missing(path, layout.columns, [k for k in content if not k.startswith("__")],
                  "variable")
         self.columns: dict[str, NDArray[Any]] = {}
@@ -353,6 +454,128 @@ class _MAT(_Source):
             return
         for start in range(0, self.n_rows(), rows):
             yield {c: v[start:start + rows] for c, v in self.columns.items()}
+
+
+# ----------------------------------------------------------------------------- MATLAB v5 check
+#: MATLAB v5 data types scipy can turn into an array (it indexes a table with the code unchecked).
+_MI_ARRAY_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 16, 17, 18})
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+_MX_NUMERIC = range(6, 16)  # double, single, int8 ... uint64
+_MX_NAMES = {1: "cell", 2: "struct", 3: "object", 4: "char", 5: "sparse", 16: "function",
+             17: "opaque"}
+
+
+class _Mat5Variable:
+    """The bytes of one MATLAB v5 variable, read as scipy reads them (inflated if compressed)."""
+
+    def __init__(self, fh: Any, start: int, size: int, compressed: bool, order: str) -> None:
+        self.fh, self.left, self.order = fh, size, order
+        self.inflate = zlib.decompressobj() if compressed else None
+        fh.seek(start)
+
+    def read(self, n: int) -> bytes:
+        """``n`` bytes; EOFError if the data end first."""
+        if self.inflate is None:
+            out = bytes(self.fh.read(n))
+        else:
+            buf = bytearray()
+            while len(buf) < n and not self.inflate.eof:
+                data = self.inflate.unconsumed_tail
+                if not data and self.left > 0:
+                    data = self.fh.read(min(self.left, 1 << 16))
+                    self.left = self.left - len(data) if data else 0
+                more = self.inflate.decompress(data, n - len(buf))
+                if not more and not data:
+                    break
+                buf += more
+            out = bytes(buf)
+        if len(out) < n:
+            raise EOFError
+        return out
+
+    def skip(self, n: int) -> None:
+        if self.inflate is None:
+            self.fh.seek(n, os.SEEK_CUR)
+            return
+        while n > 0:
+            step = min(n, 1 << 20)
+            self.read(step)
+            n -= step
+
+    def tag(self) -> tuple[int, int, bytes | None]:
+        """An element's data type and byte count, and its data if small (inside the tag)."""
+        raw = self.read(8)
+        mdtype, count = struct.unpack(self.order + "II", raw)
+        if mdtype >> 16:  # small data element: type and count share the first word
+            return mdtype & 0xFFFF, mdtype >> 16, raw[4:4 + (mdtype >> 16)]
+        return mdtype, count, None
+
+    def element(self, keep: int = 0) -> bytes | None:
+        """Pass one element; its data if they are at most ``keep`` bytes."""
+        _, count, small = self.tag()
+        if small is not None:
+            return small
+        padded = count + (8 - count % 8) % 8
+        if count > keep:
+            self.skip(padded)
+            return None
+        body = self.read(padded)
+        return body[:count]
+
+
+def _check_mat5(path: Path, names: tuple[str, ...]) -> None:
+    """Refuse what would crash scipy's MATLAB v5 reader in the variables railwatch reads.
+
+    scipy (1.17 at least) indexes a C table with an element's data-type code unchecked: one
+    damaged byte there is a segmentation fault, not an exception. This walks the file as scipy
+    does (same framing, same variables: the first of each name) and checks those codes first.
+    Other damage is left to scipy, which raises. Non-numeric variables are refused here.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(128)
+        if len(head) < 128 or 0 in head[:4]:
+            return  # v4 (read in Python) or too short: scipy's own checks
+        if head[124 + int(head[126] == ord("I"))] != 1:
+            return  # v7.3 (HDF5) or unknown: not scipy's v5 reader
+        order = "<" if head[126:128] == b"IM" else ">"
+        size = os.fstat(fh.fileno()).st_size
+        wanted, pos = set(names), 128
+        while wanted and pos + 8 <= size:
+            fh.seek(pos)
+            mdtype, nbytes = struct.unpack(order + "II", fh.read(8))
+            if nbytes == 0 or mdtype not in (_MI_MATRIX, _MI_COMPRESSED):
+                return  # scipy refuses it
+            var = _Mat5Variable(fh, pos + 8, nbytes, mdtype == _MI_COMPRESSED, order)
+            pos += 8 + nbytes
+            try:
+                _check_mat5_variable(path, var, wanted)
+            except (zlib.error, struct.error, EOFError):
+                return  # damage scipy meets the same way, and raises on
+
+
+def _check_mat5_variable(path: Path, var: _Mat5Variable, wanted: set[str]) -> None:
+    if var.inflate is not None and var.tag()[0] != _MI_MATRIX:
+        return
+    var.read(8)  # the array flags' tag
+    flags = struct.unpack(var.order + "I", var.read(8)[:4])[0]
+    mclass, complex_ = flags & 0xFF, bool(flags >> 11 & 1)
+    if mclass != 17:  # all but opaque objects have dimensions
+        var.element()
+    raw = var.element(keep=1 << 10)  # a longer name is none railwatch reads
+    name = None if raw is None else raw.decode("latin1")
+    if name not in wanted:
+        return
+    wanted.discard(name)
+    if mclass not in _MX_NUMERIC:
+        raise RailwatchError(f"variable {name!r} is not numeric (MATLAB class "
+                             f"{_MX_NAMES.get(mclass, mclass)})")
+    for part in range(2 if complex_ else 1):  # real, then imaginary values
+        mdtype, count, small = var.tag()
+        if mdtype not in _MI_ARRAY_TYPES:
+            raise RailwatchError(f"cannot read {path} as a MATLAB file: variable {name!r} holds "
+                                 f"values of unknown type {mdtype} (a damaged file)")
+        if part == 0 and complex_ and small is None:
+            var.skip(count + (8 - count % 8) % 8)
 
 
 _SOURCES: dict[str, type[_Source]] = {"csv": _CSV, "parquet": _Parquet, "hdf5": _HDF5,
