@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import h5py
+import numpy as np
 import yaml
 
 TINY = Path(__file__).parents[1] / "configs" / "tiny"
@@ -15,3 +17,13 @@ def tiny_config(name: str) -> dict[str, Any]:
     path = TINY / f"{name}.yaml"
     values = yaml.safe_load(path.read_text()) if path.exists() else {}
     return {**(values or {}), "progress": False}
+
+
+def write_mat73(path: Path, cols: dict[str, np.ndarray]) -> None:
+    """A MATLAB v7.3 file: HDF5 behind a 512-byte MATLAB header, vectors stored as (1, n)."""
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for k, v in cols.items():
+            f.create_dataset(k, data=np.asarray(v)[None, :])
+    with open(path, "r+b") as fh:
+        fh.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: x HDF5 schema 1.00 .".ljust(
+            116) + b"\0" * 8 + b"\x00\x02IM")

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import write_mat73
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout, layout_toml, load_layout, parse_layout
 from railwatch.recordings.readers import Recording, write_recording
@@ -19,18 +20,6 @@ def columns(n: int = 500, seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
     return {"t": 10.0 + np.arange(n) / FS, "v": np.full(n, 20.0),
             "a": rng.normal(size=n), "b": rng.normal(size=n), "unused": np.zeros(n)}
-
-
-def write_mat73(path: Path, cols: dict[str, np.ndarray]) -> None:
-    """A MATLAB v7.3 file: HDF5 behind a 512-byte MATLAB header, vectors stored as (1, n)."""
-    import h5py
-
-    with h5py.File(path, "w", userblock_size=512) as f:
-        for k, v in cols.items():
-            f.create_dataset(k, data=np.asarray(v)[None, :])
-    with open(path, "r+b") as fh:
-        fh.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: x HDF5 schema 1.00 .".ljust(
-            116) + b"\0" * 8 + b"\x00\x02IM")
 
 
 @pytest.mark.parametrize("ext", [".csv", ".parquet", ".h5", ".mat", ".mat73"])

@@ -26,6 +26,7 @@ import pytest
 from hypothesis import HealthCheck, currently_in_test_context, event, given, settings
 from hypothesis import strategies as st
 
+from conftest import write_mat73
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording, write_recording
@@ -98,18 +99,6 @@ def outcome(message: str) -> None:
 def valid_columns(n: int = 40) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(1)
     return {"t": 5.0 + np.arange(n) / FS, "a": rng.normal(size=n), "b": rng.normal(size=n)}
-
-
-def write_mat73(path: Path, cols: dict[str, np.ndarray]) -> None:
-    """A MATLAB v7.3 file: HDF5 behind a 512-byte MATLAB header, vectors stored as (1, n)."""
-    import h5py
-
-    with h5py.File(path, "w", userblock_size=512) as f:
-        for k, v in cols.items():
-            f.create_dataset(k, data=np.asarray(v)[None, :])
-    with open(path, "r+b") as fh:
-        fh.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: x HDF5 schema 1.00 .".ljust(
-            116) + b"\0" * 8 + b"\x00\x02IM")
 
 
 #: Valid files to cut and damage: each format as write_recording writes it, and variants.

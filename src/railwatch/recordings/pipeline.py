@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.detectors.base import Detector, load_detector
-from railwatch.errors import RailwatchError
+from railwatch.errors import RailwatchError, one_line
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Recording
@@ -133,8 +133,8 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
             raise ValueError(f"its layout names {len(layout.channels)} channels, the model was "
                              f"trained on {detector.n_channels_}")
     except (KeyError, TypeError, ValueError, RailwatchError) as e:
-        what = " ".join(str(e).split()) or type(e).__name__
-        raise RailwatchError(f"{source} is damaged ({what}): train the model again") from None
+        raise RailwatchError(f"{source} is damaged ({one_line(e)}): train the model again") \
+            from None
     return RecordingModel(detector, layout, prep, threshold)
 
 
