@@ -27,3 +27,17 @@ def write_mat73(path: Path, cols: dict[str, np.ndarray]) -> None:
     with open(path, "r+b") as fh:
         fh.write(b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: x HDF5 schema 1.00 .".ljust(
             116) + b"\0" * 8 + b"\x00\x02IM")
+
+
+def brute_family_max(g: np.ndarray, lengths: tuple[int, ...]) -> np.ndarray:
+    """Loop over every window, channel, sample and covering box: max |sum| / √L."""
+    n, t_len, c = g.shape
+    out = np.full(g.shape, -np.inf)
+    for i in range(n):
+        for ch in range(c):
+            for t in range(t_len):
+                for L in lengths:
+                    for s in range(max(0, t - L + 1), min(t, t_len - L) + 1):
+                        z = abs(g[i, s:s + L, ch].sum()) / np.sqrt(L)
+                        out[i, t, ch] = max(out[i, t, ch], z)
+    return out

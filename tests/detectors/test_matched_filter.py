@@ -7,7 +7,6 @@ import pytest
 from sklearn.metrics import roc_auc_score
 
 from railwatch.detectors import create
-from railwatch.detectors.glr import box_sums
 from railwatch.detectors.matched_filter import (
     filter_correlate,
     noise_scale,
@@ -15,6 +14,7 @@ from railwatch.detectors.matched_filter import (
     robust_ar,
     template_norm,
 )
+from railwatch.scoring.glr import box_sums
 from railwatch.synthetic import generate
 
 

@@ -21,7 +21,7 @@ Per window and channel (a series ``x`` of ``T`` samples), all vectorised over th
    i.e. box sums of ``c ⋆ w`` (one correlation, then cumulative sums, as in the oracle), divided
    by ``‖c * box_L‖``. Spikes are ``L = 1``, local deviations ``L`` = 5..20. The two families are
    calibrated like the oracle's (``−log10`` family-wise p under N(0, 1),
-   :mod:`railwatch.detectors.glr`), each box statistic attributed to the samples it covers.
+   :mod:`railwatch.scoring.glr`), each box statistic attributed to the samples it covers.
 4. **Standardise each channel by training statistics**: ``fit`` learns, per channel, the median and
    the MAD-based scale of the window maximum of that channel's raw score over the training
    windows (robust: the training set holds 10 % anomalies, whose huge scores would inflate a
@@ -49,8 +49,8 @@ from railwatch.detectors.base import (
     reduce_point_max,
     standardize,
 )
-from railwatch.detectors.glr import Family, effective_counts, families, scale_counts, scan
 from railwatch.errors import RailwatchError
+from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
 
 F64 = NDArray[np.float64]
 MAD_TO_STD = 1.4826  # σ = 1.4826 · median |e − median e| for Gaussian e

@@ -14,7 +14,7 @@ amplitude, sign, position and length:
 - constant box of ``L`` = 5..20 samples at ``s``: ``|Σ_{s ≤ t < s+L} r_t| / √L``.
 
 The two families (spike; boxes of all lengths) are calibrated by their own null distributions
-(:mod:`railwatch.detectors.glr`): a statistic becomes ``−log10`` of its family-wise p-value under
+(:mod:`railwatch.scoring.glr`): a statistic becomes ``−log10`` of its family-wise p-value under
 N(0, 1) noise, with the family's effective number of tests fitted by Monte Carlo in
 :meth:`Oracle.fit` (the only thing it "learns"; the data are not used). On stage-1 test data this
 calibration gives instance ROC-AUC 0.998 against 0.997 for the plain maximum of all ``z``.
@@ -40,8 +40,8 @@ from railwatch.detectors.base import (
     reduce_instance_max,
     reduce_point_max,
 )
-from railwatch.detectors.glr import Family, effective_counts, families, scale_counts, scan
 from railwatch.errors import RailwatchError
+from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
 
 
 @dataclass(frozen=True)

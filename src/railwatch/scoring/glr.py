@@ -1,7 +1,7 @@
-"""Scan statistics shared by the two reference detectors (oracle and matched filter).
+"""The GLR scan for spikes and boxes, shared by the oracle and the matched filter.
 
 Both test a whitened, (approximately) N(0, 1) residual for the benchmark's two anomaly kinds
-(``spec/benchmark.md``, "Anomalies"): a one-sample spike and a constant box of 5–20 samples, each
+(``docs/benchmark.md``): a one-sample spike and a constant box of 5–20 samples, each
 with unknown amplitude and sign. For a hypothesis ``h`` with template ``h`` the generalised
 likelihood-ratio statistic is ``z = |<g, h>| / ||h||`` (the square root of ``2 log LR``), which is
 |N(0, 1)| under the null for every hypothesis.
