@@ -1,0 +1,146 @@
+"""GLR scoring of a detector's residual: the same test the oracle makes, with estimated noise.
+
+A reconstruction model gives, for every sample and channel, a signed residual ``r = x̂ − x``
+(its reconstruction minus the input). Whatever the model, the two anomaly shapes of the benchmark
+are a one-sample spike and a 5–20-sample box added to ``x``: so the residual is tested the way the
+oracle tests the true one (:mod:`railwatch.scoring.glr`), after standardising it by a per-sample
+noise scale estimated from the residual itself:
+
+1. **Location**: the window's median residual per channel is removed (a reconstruction that is off
+   by a constant is not an anomaly).
+2. **Scale**: the benchmark's noise std may step once inside a window (stage 4 on), so one noise
+   level per window is not enough (the issue's oracle variants: one level per window loses
+   0.06–0.14 AUC at stages 4–8, one change point per window and channel 0.01–0.02). Per window and
+   channel, :func:`changepoint_scale` places at most one change of variance, by the Gaussian
+   likelihood of the winsorised squared residual, kept only when it beats a BIC-like penalty, and
+   takes a robust scale (median absolute residual / 0.6745) on each side: a defect covers at most
+   20 samples of a segment of at least :data:`MIN_SEGMENT` and barely moves a median.
+3. **Test**: the spike and box GLR statistics of the standardised residual, each calibrated to
+   ``−log10`` of its family-wise p-value under N(0, 1) noise, the larger of the two per sample
+   (``channel``), then the maximum over channels (``point``) and over time (``instance``).
+
+Nothing is learned from the training windows here: the calibration is by simulation of N(0, 1)
+windows of the same length, so a detector can switch to this scoring after training.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railwatch.scoring.glr import Family, effective_counts, families, scan
+
+#: Fewest samples on either side of a change of noise level.
+MIN_SEGMENT = 30
+#: Squares above this many times the window's robust variance are clipped when the change point
+#: is placed (a spike of 4 noise std would otherwise pull it).
+WINSOR = 9.0
+#: A change point must raise the log-likelihood by this many ``log T`` to be kept (BIC: 1 extra
+#: parameter and its position).
+PENALTY = 1.5
+#: Median of |N(0, 1)|: robust std = median |r| / MAD_NORMAL.
+MAD_NORMAL = 0.6744897501960817
+
+
+def changepoint_scale(residual: NDArray[np.floating], min_segment: int = MIN_SEGMENT
+                      ) -> NDArray[np.float64]:
+    """Per-sample noise std (N, T, C) of a centred residual: at most one change per window and
+    channel, a robust scale on each side.
+
+    >>> rng = np.random.default_rng(0)
+    >>> r = rng.standard_normal((1, 200, 1)) * np.r_[np.full(120, 0.1), np.full(80, 0.5)][:, None]
+    >>> s = changepoint_scale(r)
+    >>> int((s[0, :, 0] > 0.3).argmax())  # the change, found where it is
+    120
+    >>> bool(abs(s[0, 0, 0] - 0.1) < 0.02 and abs(s[0, -1, 0] - 0.5) < 0.1)  # both levels
+    True
+    """
+    r = np.asarray(residual, dtype=np.float64)
+    n, t_len, c = r.shape
+    absr = np.abs(r)
+    if t_len < 2 * min_segment:  # too short to split: one robust scale per window
+        return np.broadcast_to(_robust_std(absr, axis=1), r.shape).copy()
+    robust_var = np.maximum(_robust_std(absr, axis=1) ** 2, 1e-24)  # (N, 1, C)
+    sq = np.minimum(r * r, WINSOR * robust_var)
+    cs = np.concatenate([np.zeros((n, 1, c)), np.cumsum(sq, axis=1)], axis=1)  # (N, T + 1, C)
+    tau = np.arange(min_segment, t_len - min_segment + 1)  # candidate first samples of part 2
+    left = np.maximum(cs[:, tau] / tau[None, :, None], 1e-24)
+    right = np.maximum((cs[:, -1:] - cs[:, tau]) / (t_len - tau)[None, :, None], 1e-24)
+    gain = -0.5 * (tau[None, :, None] * np.log(left) + (t_len - tau)[None, :, None]
+                   * np.log(right)) + 0.5 * t_len * np.log(np.maximum(cs[:, -1:] / t_len, 1e-24))
+    best = gain.argmax(axis=1)  # (N, C)
+    keep = np.take_along_axis(gain, best[:, None], axis=1)[:, 0] > PENALTY * np.log(t_len)
+    split = np.where(keep, tau[best], t_len)  # t_len: no change
+    steps = np.arange(t_len)[None, :, None]
+    before = steps < split[:, None, :]  # (N, T, C)
+    s1 = _trimmed_std(np.where(before, absr, np.nan))
+    s2 = _trimmed_std(np.where(before, np.nan, absr))
+    s2 = np.where(np.isnan(s2), s1, s2)
+    return np.maximum(np.where(before, s1, s2), 1e-12)
+
+
+def _robust_std(absr: NDArray[np.float64], axis: int) -> NDArray[np.float64]:
+    """median |r| / 0.6745 along ``axis`` (NaN ignored), kept as a length-1 axis."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN side: no such segment
+        return np.nanmedian(absr, axis=axis, keepdims=True) / MAD_NORMAL
+
+
+#: E[z² | |z| ≤ 3] for z ~ N(0, 1): the variance left after trimming at 3 std.
+TRIMMED_VARIANCE = 0.9733
+
+
+def _trimmed_std(absr: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Std over time (axis 1, NaN ignored) of the samples within 3 robust std, bias-corrected:
+    as robust as the median to a defect, with the precision of a mean square (at the true
+    change point, measured: 0.958 instead of 0.944 AUC for the MAD at stage 4)."""
+    import warnings
+
+    s0 = _robust_std(absr, axis=1)
+    kept = np.where(absr <= 3.0 * s0, absr, np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.sqrt(np.nanmean(kept * kept, axis=1, keepdims=True) / TRIMMED_VARIANCE)
+
+
+@lru_cache(maxsize=32)
+def null_counts(n_steps: int, fams: tuple[Family, ...], n_windows: int, alpha: float,
+                seed: int) -> tuple[float, ...]:
+    """Effective test counts per family for windows of ``n_steps`` (cached by all arguments)."""
+    return tuple(float(m) for m in effective_counts(n_steps, fams, n_windows, alpha, seed))
+
+
+@dataclass(frozen=True)
+class ResidualGLR:
+    """Calibrated spike/box GLR scores of a residual (N, T, C): channel, point and instance.
+
+    ``null_windows`` N(0, 1) windows (seeded) calibrate each family's effective number of tests
+    at the null's ``1 − alpha`` quantile, once per window length (cached).
+    """
+
+    min_box: int = 5
+    max_box: int = 20
+    null_windows: int = 2000
+    alpha: float = 0.1
+    seed: int = 0
+    min_segment: int = MIN_SEGMENT
+
+    def standardized(self, residual: NDArray[np.floating]) -> NDArray[np.float64]:
+        """``(r − median_t r) / scale`` (N, T, C): about N(0, 1) where the model is right."""
+        r = np.asarray(residual, dtype=np.float64)
+        centred = r - np.median(r, axis=1, keepdims=True)
+        return centred / changepoint_scale(centred, self.min_segment)
+
+    def channel_scores(self, residual: NDArray[np.floating]) -> NDArray[np.float32]:
+        """``−log10`` family-wise p of the best spike or box covering each sample (N, T, C)."""
+        g = self.standardized(residual)
+        fams = families(self.min_box, self.max_box)
+        counts = np.array(null_counts(g.shape[1], fams, self.null_windows, self.alpha,
+                                       self.seed))
+        norms = [[np.sqrt(L) for L in fam] for fam in fams]
+        return scan(g, fams, norms, counts).astype(np.float32)
