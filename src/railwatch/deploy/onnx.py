@@ -34,9 +34,10 @@ from railwatch.detectors.base import (
     TorchDetector,
     config_from_dict,
     load_detector,
+    positive_count,
     verify_restored,
 )
-from railwatch.errors import RailwatchError, one_line
+from railwatch.errors import RailwatchError, naming, one_line
 
 META_KEY = "railwatch"
 #: Metadata key of the SHA-256 of the graph and the ``railwatch`` metadata, written at export:
@@ -245,7 +246,8 @@ def load_onnx(path: str | os.PathLike[str], threads: int | None = None) -> Detec
             raise RailwatchError(f"its config does not fit {meta['detector']} ({e})") from None
         det = cls(config)
         det.registry_name = meta["detector"]
-        det.n_steps_, det.n_channels_ = _count(meta, "n_steps"), _count(meta, "n_channels")
+        det.n_steps_, det.n_channels_ = (positive_count(meta, k, "its metadata")
+                                          for k in ("n_steps", "n_channels"))
         keys = meta["outputs"]
         if not isinstance(keys, list) or not keys or not all(isinstance(k, str) for k in keys):
             raise RailwatchError("its metadata lists no outputs")
@@ -258,16 +260,8 @@ def load_onnx(path: str | os.PathLike[str], threads: int | None = None) -> Detec
         det.backend_ = backend
         verify_restored(det)
     except RailwatchError as e:
-        message = one_line(e)
-        raise RailwatchError(message if str(path) in message else f"{path}: {message}") from None
+        raise naming(str(path), e) from None
     except Exception as e:  # noqa: BLE001 - damaged metadata, whatever the exception
         raise RailwatchError(f"{path}: its '{META_KEY}' metadata is damaged "
                              f"({type(e).__name__}: {one_line(e)[:160]})") from None
     return det
-
-
-def _count(meta: dict[str, Any], key: str) -> int:
-    value = meta[key]
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise RailwatchError(f"its metadata gives {key} = {value!r}, not a positive count")
-    return value

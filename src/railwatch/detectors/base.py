@@ -35,7 +35,7 @@ import torch
 from numpy.typing import NDArray
 
 from railwatch.atomic import fsync_path, sha256_file
-from railwatch.errors import RailwatchError, one_line
+from railwatch.errors import RailwatchError, naming, one_line
 from railwatch.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -388,7 +388,8 @@ class Detector(ABC):
         except RailwatchError as e:
             raise RailwatchError(f"detector.json: the config does not fit {name} ({e})") from None
         det = cls(config)
-        det.n_steps_, det.n_channels_ = _count(header, "n_steps"), _count(header, "n_channels")
+        det.n_steps_, det.n_channels_ = (positive_count(header, k, "detector.json")
+                                      for k in ("n_steps", "n_channels"))
         if not (path / "stats.npz").is_file():
             raise RailwatchError("stats.npz is missing")
         try:
@@ -479,8 +480,7 @@ def load_detector(path: str | os.PathLike[str]) -> Detector:
         det.registry_name = header["detector"]
         return det
     except RailwatchError as e:
-        message = one_line(e)
-        raise RailwatchError(message if str(path) in message else f"{path}: {message}") from None
+        raise naming(str(path), e) from None
     except Exception as e:  # noqa: BLE001 - any failure to read a saved model is the same to the user
         raise RailwatchError(
             f"{path} is not a readable railwatch model directory ({type(e).__name__}: "
@@ -582,10 +582,11 @@ def _running(pid: int) -> bool:
     return True
 
 
-def _count(header: dict[str, Any], key: str) -> int:
-    value = header[key]
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise RailwatchError(f"detector.json: {key} must be a whole number, got {value!r}")
+def positive_count(values: Mapping[str, Any], key: str, where: str) -> int:
+    """``values[key]`` as a count of steps or channels: a whole number of at least 1."""
+    value = values[key]
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise RailwatchError(f"{where}: {key} must be a positive whole number, got {value!r}")
     return value
 
 

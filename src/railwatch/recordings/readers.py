@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.errors import RailwatchError
+from railwatch.errors import RailwatchError, naming, one_line
 from railwatch.recordings.layout import Layout
 
 FORMATS = {".csv": "csv", ".txt": "csv", ".parquet": "parquet", ".pq": "parquet", ".h5": "hdf5",
@@ -97,10 +97,7 @@ class Recording:
         try:
             yield
         except RailwatchError as e:
-            message = " ".join(str(e).splitlines())
-            if self.path.name not in message:
-                message = f"{self.path.name}: {message}"
-            raise RailwatchError(message) from None
+            raise naming(self.path.name, e) from None
         except Exception as e:  # noqa: BLE001 - a library choking on a damaged or odd file
             raise RailwatchError(f"cannot read {self.path.name} as "
                                  f"{FORMAT_NAMES[self.format]}: {_reason(e)}") from e
@@ -211,7 +208,7 @@ def _numeric(name: str, values: Any, start: int) -> NDArray[np.float64]:
 
 def _reason(e: BaseException) -> str:
     """A library's exception as a short line."""
-    return " ".join(str(e).split())[:160] or type(e).__name__
+    return one_line(e)[:160]
 
 
 def _shown(name: str) -> str:
