@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-reliability bench-residual-glr \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-reliability bench-residual-glr bench-context-glr \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -66,6 +66,9 @@ bench-reliability: $(STAMP)  ## the fault and fuzz tests, counted into docs/resu
 
 bench-residual-glr: $(STAMP)  ## stages 1-8: GLR scoring of the true and of cnn-ae's residual
 	$(BIN)/python benchmarks/residual_glr.py
+
+bench-context-glr: $(STAMP)  ## stages 1,4,5,7,8: context-glr's prediction error and its supervised bound
+	$(BIN)/python benchmarks/context_glr.py
 
 bench-standard: $(STAMP)  ## the standard benchmark (3 seeds, 3,000 test windows; ~1 h on 2 cores)
 	$(BIN)/railwatch bench --preset standard --out runs/standard

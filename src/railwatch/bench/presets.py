@@ -16,7 +16,7 @@ PRESET_DIR = Path(__file__).resolve().parents[3] / "configs" / "presets"
 #: all three from one trained network) and the two references.
 DEFAULT_DETECTORS = (
     "lstm-ed", "cnn-ae", "mscred", "anomaly-transformer", "aft-attention", "aft-reconstruction",
-    "aft-combined", "matched-filter", "oracle",
+    "aft-combined", "context-glr", "matched-filter", "oracle",
 )
 
 

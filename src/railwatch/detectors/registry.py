@@ -46,6 +46,9 @@ REGISTRY: dict[str, Entry] = {
         "railwatch.detectors.attention_transformer:AttentionFocusedTransformer",
         "the paper's Attention-Focused Transformer, attention and reconstruction scores combined",
         {"scoring": "combined"}),
+    "context-glr": Entry("railwatch.detectors.context_glr:ContextGLR",
+                         "railwatch's own: blind-spot network predicting every sample and its "
+                         "noise scale from the context, spike/box GLR scan of the residual"),
     "matched-filter": Entry("railwatch.detectors.matched_filter:MatchedFilter",
                             "classical baseline: robust linear predictor + matched filters for "
                             "spikes and 5-20-sample boxes, no network"),

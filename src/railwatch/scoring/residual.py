@@ -138,7 +138,11 @@ class ResidualGLR:
 
     def channel_scores(self, residual: NDArray[np.floating]) -> NDArray[np.float32]:
         """``−log10`` family-wise p of the best spike or box covering each sample (N, T, C)."""
-        g = self.standardized(residual)
+        return self.scan(self.standardized(residual))
+
+    def scan(self, g: NDArray[np.floating]) -> NDArray[np.float32]:
+        """The calibrated scan of a residual already in noise units (N, T, C)."""
+        g = np.asarray(g, dtype=np.float64)
         fams = families(self.min_box, self.max_box)
         counts = np.array(null_counts(g.shape[1], fams, self.null_windows, self.alpha,
                                        self.seed))

@@ -1,0 +1,233 @@
+"""context-glr: railwatch's own detector. A blind-spot network predicts every sample from its
+context, with a per-sample noise scale; the spike/box GLR scan tests the standardised residual.
+
+Why this shape (``docs/context-glr.md`` has the measurements):
+
+- **Blind spot.** The prediction of sample ``t`` (every channel) never sees the samples
+  ``t − gap .. t + gap``: two stacks of causal dilated convolutions, one reading the window
+  forwards and one backwards, each shifted by ``gap + 1`` samples, are joined by 1×1 layers (the
+  construction of Laine et al. 2019, "High-quality self-supervised deep image denoising", in one
+  dimension). A reconstruction model that sees the sample copies a spike or a 20-sample offset
+  into its output, and the defect vanishes from the residual; this one cannot copy the sample under
+  test, so the residual keeps the noise and the defect whatever the network learns.
+- **Channel independence.** Every channel is its own series through the same weights, and each
+  training step takes one random channel of each window: a six-channel training set is six
+  times as many series for the same training time. At stage 5 this cut the prediction error from
+  half the noise level to a third and raised the instance ROC-AUC from 0.77 to 0.88.
+- **Defects in the context.** A box of 5–20 samples is seen by the predictions of its own samples
+  (their neighbours are in it). Training therefore adds random spikes and boxes (the shapes the
+  scan tests, at sizes from a third of the channel's spread to six times it, on half the
+  channels) to the *input* and asks for the un-changed window: the network learns to predict
+  through such shapes, while the bursts, impulses and speed changes, which are in every window,
+  are to be followed. No label and no generator component is used; the training windows keep
+  their own 10 % of real defects.
+- **Robust likelihood.** The network outputs the prediction ``μ`` and a log noise scale ``log s``
+  for every sample and channel (the scale is blind too), trained by the Student-t negative
+  log-likelihood with ``dof`` degrees of freedom: a defect left in a training window costs the
+  logarithm of its size, not its square, so the real 10 % contamination barely pulls the fit.
+- **Level kept.** Inputs are standardised per channel by training statistics, never per window:
+  a window that is louder as a whole stays louder.
+
+Score: ``g = (x − μ) / (s · k_c)`` with ``k_c`` the per-channel robust spread of the standardised
+residual on the validation split (so that ``g`` is N(0, 1) where the model is right), minus its
+window median; :class:`railwatch.scoring.residual.ResidualGLR` scans ``g`` for a one-sample spike
+and boxes of ``min_box .. max_box`` samples and gives calibrated ``−log10`` p-values per sample
+and channel. ``scale="changepoint"`` ignores the learned scale and estimates it from the residual
+instead (at most one change of noise level per window and channel). Point = max over channels,
+instance = max over time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import nn
+
+from railwatch.detectors.base import (
+    DetectorConfig,
+    Scores,
+    TorchDetector,
+    TrainConfig,
+    reduce_instance_max,
+    reduce_point_max,
+)
+from railwatch.errors import RailwatchError
+from railwatch.scoring.residual import MAD_NORMAL, ResidualGLR
+
+SCALES = ("learned", "changepoint")
+
+
+@dataclass(frozen=True)
+class ContextGLRConfig(TrainConfig):
+    width: int = 64  # channels of each convolution stack
+    dilations: tuple[int, ...] = (1, 2, 4, 8, 16, 32)  # one residual layer each, per direction
+    kernel: int = 3
+    gap: int = 0  # the prediction of t sees nothing within gap samples of t (0: t itself)
+    inject: float = 0.5  # share of training (window, channel) pairs given a spike or a box
+    inject_size: tuple[float, float] = (0.3, 6.0)  # its size, log-uniform, in channel stds
+    dof: float = 4.0  # degrees of freedom of the Student-t likelihood
+    scale: str = "learned"  # noise scale of the scan: "learned" or "changepoint"
+    min_box: int = 5  # shortest box tested and injected, samples
+    max_box: int = 20  # longest
+    null_windows: int = 2000  # N(0, 1) windows calibrating the scan's two families
+    null_alpha: float = 0.1
+    epochs: int = 25  # about 3.5 min for 3,000 six-channel windows on 2 cores
+    lr: float = 2e-3
+    patience: int = 0  # the cosine schedule runs its whole course
+
+
+class CausalStack(nn.Module):
+    """(B, C, T) -> (B, W, T) whose output at ``t`` depends only on inputs before ``t − gap``."""
+
+    def __init__(self, n_channels: int, width: int, dilations: tuple[int, ...], kernel: int,
+                 gap: int) -> None:
+        super().__init__()
+        self.shift = gap + 1
+        self.inp = nn.Conv1d(n_channels, width, 1)
+        self.convs = nn.ModuleList(nn.Conv1d(width, width, kernel, dilation=d)
+                                   for d in dilations)
+        self.pads = [(kernel - 1) * d for d in dilations]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = nn.functional.pad(x, (self.shift, 0))[:, :, : x.shape[2]]
+        h = self.inp(x)
+        for conv, pad in zip(self.convs, self.pads, strict=True):
+            h = h + nn.functional.gelu(conv(nn.functional.pad(h, (pad, 0))))
+        return h
+
+
+class BlindSpotNet(nn.Module):
+    """(B, T, C) -> prediction μ and log scale (B, T, C), both blind to ``t ± gap``.
+
+    Channel-independent: every channel is its own series through the same weights (as
+    PatchTST's channel independence), so a six-channel window is six training series and the
+    network fits any channel count.
+    """
+
+    def __init__(self, width: int, dilations: tuple[int, ...], kernel: int, gap: int) -> None:
+        super().__init__()
+        self.forwards = CausalStack(1, width, dilations, kernel, gap)
+        self.backwards = CausalStack(1, width, dilations, kernel, gap)
+        self.head = nn.Sequential(nn.Conv1d(2 * width, width, 1), nn.GELU(),
+                                  nn.Conv1d(width, 2, 1))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        b, t, c = x.shape
+        h = x.transpose(1, 2).reshape(b * c, 1, t)  # one series per (window, channel)
+        past = self.forwards(h)
+        future = self.backwards(h.flip(2)).flip(2)
+        out = self.head(torch.cat([past, future], dim=1))  # (B·C, 2, T)
+        out = out.reshape(b, c, 2, t).permute(0, 3, 1, 2)  # (B, T, C, 2)
+        return out[..., 0], out[..., 1]
+
+
+def inject_defects(x: torch.Tensor, share: float, size: tuple[float, float], min_box: int,
+                   max_box: int, gen: torch.Generator) -> torch.Tensor:
+    """``x`` (B, T, C) with, on a ``share`` of its (window, channel) pairs, one spike or one box
+    of ``min_box .. max_box`` samples (half each), of random sign and log-uniform size."""
+    b, t, c = x.shape
+    hit = torch.rand(b, c, generator=gen) < share
+    spike = torch.rand(b, c, generator=gen) < 0.5
+    length = torch.where(spike, torch.ones(b, c, dtype=torch.long),
+                         torch.randint(min_box, max_box + 1, (b, c), generator=gen))
+    length = length.clamp(max=t)
+    start = (torch.rand(b, c, generator=gen) * (t - length + 1)).long()
+    lo, hi = math.log(size[0]), math.log(size[1])
+    amp = torch.exp(lo + (hi - lo) * torch.rand(b, c, generator=gen))
+    sign = torch.randint(0, 2, (b, c), generator=gen) * 2 - 1
+    amp = (amp * sign * hit).to(x.dtype)
+    steps = torch.arange(t)[None, :, None]
+    inside = (steps >= start[:, None, :]) & (steps < (start + length)[:, None, :])
+    return x + (inside * amp[:, None, :]).to(x.device)
+
+
+class ContextGLR(TorchDetector):
+    Config: ClassVar[type[DetectorConfig]] = ContextGLRConfig
+    config: ContextGLRConfig  # type: ignore[assignment]
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scale", "null_windows",
+                                                 "null_alpha")
+
+    def build(self, n_steps: int, n_channels: int) -> nn.Module:
+        cfg = self.config
+        if cfg.scale not in SCALES:
+            raise RailwatchError(f"scale must be one of {', '.join(SCALES)}, got {cfg.scale!r}")
+        if not 1 <= cfg.min_box <= cfg.max_box:
+            raise RailwatchError(f"boxes of {cfg.min_box}..{cfg.max_box} samples are impossible")
+        if not 0.0 <= cfg.inject <= 1.0 or not 0 < cfg.inject_size[0] <= cfg.inject_size[1]:
+            raise RailwatchError("inject must be a share in [0, 1] and inject_size two positive "
+                                 "sizes, the smaller first")
+        self.noise_gen_ = torch.Generator().manual_seed(cfg.seed + 1)
+        return BlindSpotNet(cfg.width, cfg.dilations, cfg.kernel, cfg.gap)
+
+    def make_optimizer(self) -> torch.optim.Optimizer:
+        opt = torch.optim.Adam(self.model_.parameters(), lr=self.config.lr)
+        epochs = max(self.config.epochs, 1)  # cosine decay to zero over the epochs
+        self.schedule_ = torch.optim.lr_scheduler.LambdaLR(
+            opt, lambda e: 0.5 * (1.0 + math.cos(math.pi * min(e, epochs) / epochs)))
+        return opt
+
+    def on_epoch_end(self, epoch: int) -> None:
+        self.schedule_.step()
+
+    def _fit(self, X: NDArray[np.float32], context: dict[str, NDArray[np.float32]]) -> None:
+        try:
+            super()._fit(X, context)
+        finally:  # training-only state is not part of the fitted model
+            self.__dict__.pop("schedule_", None)
+            self.__dict__.pop("noise_gen_", None)
+
+    def nll(self, x: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
+        """Student-t negative log-likelihood of ``x`` under the prediction from ``seen``."""
+        mu, log_scale = self.model_(seen)
+        z2 = ((x - mu) * torch.exp(-log_scale)) ** 2
+        nu = self.config.dof
+        return (log_scale + 0.5 * (nu + 1.0) * torch.log1p(z2 / nu)).mean()
+
+    def loss(self, xb: torch.Tensor) -> torch.Tensor:
+        cfg = self.config
+        if not self.model_.training:
+            return self.nll(xb, xb)
+        # one random channel of each window per step: a six-channel stage costs what a
+        # one-channel stage does per epoch, and sees other channels in other epochs
+        pick = torch.randint(0, xb.shape[2], (len(xb),), generator=self.noise_gen_)
+        xb = xb[torch.arange(len(xb)), :, pick.to(xb.device)][..., None]
+        seen = xb
+        if cfg.inject > 0:
+            seen = inject_defects(xb, cfg.inject, cfg.inject_size, cfg.min_box, cfg.max_box,
+                                  self.noise_gen_)
+        return self.nll(xb, seen)
+
+    def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
+        mu, log_scale = self.model_(xb)
+        return {"residual": xb - mu, "scale": torch.exp(log_scale)}
+
+    def _scan(self) -> ResidualGLR:
+        cfg = self.config
+        return ResidualGLR(min_box=cfg.min_box, max_box=cfg.max_box,
+                           null_windows=cfg.null_windows, alpha=cfg.null_alpha, seed=cfg.seed)
+
+    def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
+        z = raw["residual"] / np.maximum(raw["scale"], 1e-6)
+        z = z - np.median(z, axis=1, keepdims=True)
+        spread = np.median(np.abs(z), axis=(0, 1)) / MAD_NORMAL
+        self.stats_["z_spread"] = np.where(spread > 1e-6, spread, 1.0).astype(np.float32)
+
+    def standardized(self, raw: dict[str, NDArray[Any]]) -> NDArray[np.float64]:
+        """The residual in noise units (N, T, C), window median removed."""
+        if self.config.scale == "changepoint":
+            return self._scan().standardized(raw["residual"])
+        z = raw["residual"].astype(np.float64) / np.maximum(raw["scale"], 1e-6)
+        z = z / self.stats_["z_spread"].astype(np.float64)
+        return z - np.median(z, axis=1, keepdims=True)
+
+    def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
+        channel = self._scan().scan(self.standardized(raw))
+        point = reduce_point_max(channel)
+        more = {"residual": raw["residual"], "scale": raw["scale"]} if extras else {}
+        return Scores(instance=reduce_instance_max(point), point=point, channel=channel,
+                      extras=more)
