@@ -41,8 +41,8 @@ N_TRAIN, N_TEST = 2000, 1000
 def error_ratio(det: ContextGLR, X: np.ndarray, nuisance: np.ndarray, noise: np.ndarray) -> float:
     """rms(μ − nuisance) / rms(noise std), both per channel in normalised units."""
     std = det.stats_["input_std"]
-    raw = det._raw_all(det._normalized(X.astype(np.float32)))
-    mu = det._normalized(X.astype(np.float32)) - raw["residual"]
+    x = det._normalized(X.astype(np.float32))
+    mu = x - det._raw_all(x)["residual"]
     truth = (nuisance - det.stats_["input_mean"]) / std
     return float(np.sqrt(np.mean((mu - truth) ** 2)) / np.sqrt(np.mean((noise / std) ** 2)))
 

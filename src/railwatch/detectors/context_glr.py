@@ -161,10 +161,12 @@ class ContextGLR(TorchDetector):
         if not 0.0 <= cfg.inject <= 1.0 or not 0 < cfg.inject_size[0] <= cfg.inject_size[1]:
             raise RailwatchError("inject must be a share in [0, 1] and inject_size two positive "
                                  "sizes, the smaller first")
-        self.noise_gen_ = torch.Generator().manual_seed(cfg.seed + 1)
         return BlindSpotNet(cfg.width, cfg.dilations, cfg.kernel, cfg.gap)
 
     def make_optimizer(self) -> torch.optim.Optimizer:
+        """Adam with a cosine decay, and the generator of the training-only randomness (channel
+        picks, injected defects): both exist only while ``fit`` runs."""
+        self.noise_gen_ = torch.Generator().manual_seed(self.config.seed + 1)
         opt = torch.optim.Adam(self.model_.parameters(), lr=self.config.lr)
         epochs = max(self.config.epochs, 1)  # cosine decay to zero over the epochs
         self.schedule_ = torch.optim.lr_scheduler.LambdaLR(
@@ -211,19 +213,21 @@ class ContextGLR(TorchDetector):
         return ResidualGLR(min_box=cfg.min_box, max_box=cfg.max_box,
                            null_windows=cfg.null_windows, alpha=cfg.null_alpha, seed=cfg.seed)
 
+    @staticmethod
+    def _learned_z(raw: dict[str, NDArray[Any]]) -> NDArray[np.float64]:
+        """Residual over the learned scale, window median removed (N, T, C)."""
+        z = raw["residual"].astype(np.float64) / np.maximum(raw["scale"], 1e-6)
+        return z - np.median(z, axis=1, keepdims=True)
+
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
-        z = raw["residual"] / np.maximum(raw["scale"], 1e-6)
-        z = z - np.median(z, axis=1, keepdims=True)
-        spread = np.median(np.abs(z), axis=(0, 1)) / MAD_NORMAL
+        spread = np.median(np.abs(self._learned_z(raw)), axis=(0, 1)) / MAD_NORMAL
         self.stats_["z_spread"] = np.where(spread > 1e-6, spread, 1.0).astype(np.float32)
 
     def standardized(self, raw: dict[str, NDArray[Any]]) -> NDArray[np.float64]:
         """The residual in noise units (N, T, C), window median removed."""
         if self.config.scale == "changepoint":
             return self._scan().standardized(raw["residual"])
-        z = raw["residual"].astype(np.float64) / np.maximum(raw["scale"], 1e-6)
-        z = z / self.stats_["z_spread"].astype(np.float64)
-        return z - np.median(z, axis=1, keepdims=True)
+        return self._learned_z(raw) / self.stats_["z_spread"].astype(np.float64)
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
         channel = self._scan().scan(self.standardized(raw))
