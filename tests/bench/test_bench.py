@@ -53,15 +53,17 @@ def test_second_run_recomputes_nothing(smoke_run: Path, capsys) -> None:  # type
     assert {p: p.stat().st_mtime_ns for p in cell_files} == before
 
 
-def test_attention_model_variants_share_one_training(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_scoring_variants_share_one_training(tmp_path) -> None:  # type: ignore[no-untyped-def]
     out = tmp_path / "shared"
     assert main(["-q", "bench", "--preset", "smoke", "--stages", "1", "--detectors",
-                 "aft-attention,aft-reconstruction,aft-combined", "--out", str(out)]) == 0
+                 "aft-attention,aft-reconstruction,aft-combined,aft-reconstruction+glr,"
+                 "cnn-ae,cnn-ae+glr", "--out", str(out)]) == 0
     cells = json.loads((out / "results.json").read_text())["cells"]
-    assert [c["trained_by"] for c in cells] == ["aft-attention"] * 3
-    assert len({c["threshold"] for c in cells}) == 3  # each mode fits its own threshold
-    assert len(list((out / "cache" / "models").iterdir())) == 1
+    assert [c["trained_by"] for c in cells] == ["aft-attention"] * 4 + ["cnn-ae"] * 2
+    assert len({c["threshold"] for c in cells}) == 6  # each mode fits its own threshold
+    assert len(list((out / "cache" / "models").iterdir())) == 2
     assert cells[1]["fit_s"] >= cells[0]["fit_s"]  # the shared training's time is counted
+    assert cells[5]["fit_s"] >= cells[4]["fit_s"]
 
 
 def test_retime_measures_scoring_again_and_keeps_the_aucs(smoke_run: Path, tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -51,8 +51,8 @@ def test_scores_from_raw() -> None:
     e = hand_made_errors()
     det = LSTMEncoderDecoder(LSTMEDConfig(ridge=0.0))
     det.stats_ = {}
-    det.fit_statistics({"abs_error": e})
-    s = det.scores_from_raw({"abs_error": e[:4]}, extras=False)
+    det.fit_statistics({"residual": e})
+    s = det.scores_from_raw({"residual": e[:4]}, extras=False)
     mu, cov = e.reshape(-1, 3).mean(axis=0), np.cov(e.reshape(-1, 3), rowvar=False)
     d = e[:4] - mu
     np.testing.assert_allclose(s.point, np.einsum("ntc,cd,ntd->nt", d, np.linalg.inv(cov), d),

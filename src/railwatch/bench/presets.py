@@ -13,10 +13,14 @@ from railwatch.mapping_files import read_mapping
 PRESET_DIR = Path(__file__).resolve().parents[3] / "configs" / "presets"
 
 #: The paper's five models (the attention model in its two paper variants and their combination,
-#: all three from one trained network) and the two references.
+#: all three from one trained network), the reconstruction models scored by the GLR scan,
+#: railwatch's own detector and the two references.
 DEFAULT_DETECTORS = (
     "lstm-ed", "cnn-ae", "mscred", "anomaly-transformer", "aft-attention", "aft-reconstruction",
-    "aft-combined", "context-glr", "matched-filter", "oracle",
+    "aft-combined",
+    # the same five reconstruction networks, their residual scored by the shared GLR scan
+    "lstm-ed+glr", "cnn-ae+glr", "mscred+glr", "anomaly-transformer+glr", "aft-reconstruction+glr",
+    "context-glr", "matched-filter", "oracle",
 )
 
 

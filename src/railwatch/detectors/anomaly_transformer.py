@@ -80,6 +80,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from railwatch.detectors.base import (
+    GLR_SCORING,
     DetectorConfig,
     FloatArray,
     Scores,
@@ -109,6 +110,8 @@ class AnomalyTransformerConfig(TrainConfig):
     epochs: int = 5  # the official default is 10, its scripts use 3 or 10
     early_stopping: str = "loss1"  # "official": val loss1 and loss2 must both improve;
     # "loss1": only loss1 (the official's printed "Vali Loss") must improve
+    scoring: str = "paper"  # "paper" (association weight x squared error) or "glr" (the
+    # shared GLR scan of the signed reconstruction residual: scoring=glr in docs/detectors.md)
 
 
 def official_config(**overrides: Any) -> AnomalyTransformerConfig:
@@ -335,6 +338,8 @@ class AnomalyTransformer(TorchDetector):
 
     Config: ClassVar[type[DetectorConfig]] = AnomalyTransformerConfig
     config: AnomalyTransformerConfig  # type: ignore[assignment]
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
+    scoring_modes: ClassVar[tuple[str, ...]] = ("paper", GLR_SCORING)
 
     def build(self, n_steps: int, n_channels: int) -> nn.Module:
         return AnomalyTransformerNet(n_steps, n_channels, self.config)
@@ -428,7 +433,7 @@ class AnomalyTransformer(TorchDetector):
 
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
         recon, series, priors, sigmas = self.model_(xb)
-        out = {"sq_error": (xb - recon) ** 2,  # (B, T, C)
+        out = {"residual": xb - recon,  # (B, T, C)
                "discrepancy": point_discrepancy(series, priors)}  # (B, T)
         if getattr(self, "_maps", False):
             out.update(series=torch.stack(series, dim=1),  # (B, layers, H, T, T)
@@ -438,8 +443,9 @@ class AnomalyTransformer(TorchDetector):
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
         weight = association_weight(raw["discrepancy"], self.config.temperature)  # (N, T)
-        channel = (weight[:, :, None] * raw["sq_error"]).astype(np.float32)  # (N, T, C)
-        point = (weight * raw["sq_error"].mean(axis=2)).astype(np.float32)  # (N, T)
+        sq_error = raw["residual"] ** 2
+        channel = (weight[:, :, None] * sq_error).astype(np.float32)  # (N, T, C)
+        point = (weight * sq_error.mean(axis=2)).astype(np.float32)  # (N, T)
         maps: dict[str, NDArray[Any]] = {}
         if extras:
             maps = {k: raw[k] for k in ("series", "prior", "sigma", "discrepancy")}

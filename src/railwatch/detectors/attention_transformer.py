@@ -45,6 +45,8 @@ Scores (``scoring``):
   median (a scale-free ratio, robust to the per-window noise level) and standardised per channel by
   validation statistics (median, MAD).
 - ``combined``: the mean of the two standardised scores.
+- ``glr``: the shared GLR scoring of the signed reconstruction residual (not the paper's; the
+  same for every reconstruction model: ``TorchDetector.glr_scores``).
 
 In every mode point = max over channels, instance = max over time (the spec's defaults). Scores
 are shifted to have validation median 0 and scaled by the validation MAD, so modes are comparable.
@@ -63,6 +65,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from railwatch.detectors.base import (
+    GLR_SCORING,
     DetectorConfig,
     FloatArray,
     Scores,
@@ -73,7 +76,7 @@ from railwatch.detectors.base import (
 )
 from railwatch.errors import RailwatchError
 
-SCORING_MODES = ("attention", "reconstruction", "combined")
+SCORING_MODES = ("attention", "reconstruction", "combined", GLR_SCORING)
 
 
 # ----------------------------------------------------------------------------- blocks
@@ -297,14 +300,7 @@ class AttentionFocusedTransformer(TorchDetector):
     config: AFTConfig  # type: ignore[assignment]
     # fit_statistics fits every mode's statistics, so the mode can change after training.
     scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
-
-    def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
-        super().__init__(config, **overrides)
-        if self.config.scoring not in SCORING_MODES:
-            raise RailwatchError(
-                f"unknown scoring mode {self.config.scoring!r} for the Attention-Focused "
-                f"Transformer; choose one of {', '.join(SCORING_MODES)}"
-            )
+    scoring_modes: ClassVar[tuple[str, ...]] = SCORING_MODES
 
     keep_maps_ = False  # set while scoring with extras=True
 
@@ -321,7 +317,7 @@ class AttentionFocusedTransformer(TorchDetector):
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
         y, a, maps = self.model_(xb)
         out = {
-            "sq_error": (y - xb) ** 2,  # (B, T, C)
+            "residual": xb - y,  # (B, T, C)
             "log_input_attention": torch.log(a),  # (B, T, C)
             # Relative to the window's typical token here, per batch (cheaper than in numpy).
             "attention_relative": torch_window_relative(
@@ -337,7 +333,7 @@ class AttentionFocusedTransformer(TorchDetector):
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
         self.keep_maps_ = extras  # full maps only on request: (N, C, H, L, L) per layer is large
         try:
-            return self.scores_from_raw(self._raw_all(X), extras)
+            return super()._score(X, context, extras)
         finally:
             self.keep_maps_ = False
 
@@ -369,7 +365,8 @@ class AttentionFocusedTransformer(TorchDetector):
 
     def _reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
         # Floored: an error of exactly 0 (float32) would give −inf.
-        return np.log(np.maximum(window_relative_error(raw["sq_error"]), 1e-12))  # (N, T, C)
+        sq_error = raw["residual"] ** 2
+        return np.log(np.maximum(window_relative_error(sq_error), 1e-12))  # (N, T, C)
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
         enc, inp = self._attention_relative(raw)  # per channel and feature (layer, head, kind):

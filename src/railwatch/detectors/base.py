@@ -42,6 +42,8 @@ log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float32]
 FORMAT = "railwatch-detector"
+#: The ``scoring`` mode that scores a model's residual by the shared GLR scan.
+GLR_SCORING = "glr"
 FORMAT_VERSION = 1
 
 
@@ -217,6 +219,9 @@ class Detector(ABC):
     #: Config fields that change only how a fitted model scores, not what ``fit`` learns: a
     #: fitted detector switches them with :meth:`rescored` instead of being fitted again.
     scoring_fields: ClassVar[tuple[str, ...]] = ("contamination",)
+    #: The values of the config's ``scoring`` field, for a detector that has one (the first is
+    #: the default); :data:`GLR_SCORING` among them means the shared GLR scoring of its residual.
+    scoring_modes: ClassVar[tuple[str, ...]] = ()
     registry_name: str = ""  # set by the registry (variants of one class differ here)
 
     def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
@@ -224,6 +229,10 @@ class Detector(ABC):
         if not isinstance(base, self.Config):
             raise RailwatchError(f"{type(self).__name__} takes a {self.Config.__name__}")
         self.config = replace(base, **overrides) if overrides else base
+        mode = getattr(self.config, "scoring", None)
+        if self.scoring_modes and mode not in self.scoring_modes:
+            raise RailwatchError(f"unknown scoring mode {mode!r} for {type(self).__name__}; "
+                                 f"choose one of {', '.join(self.scoring_modes)}")
 
     # -- public API ----------------------------------------------------------------------
     def fit(self, X: Any, context: Mapping[str, Any] | None = None) -> Detector:
@@ -735,7 +744,30 @@ class TorchDetector(Detector):
         return {k: np.concatenate(v) for k, v in parts.items()}
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
-        return self.scores_from_raw(self._raw_all(X), extras)
+        raw = self._raw_all(X)
+        if getattr(self.config, "scoring", None) == GLR_SCORING:
+            return self.glr_scores(raw, X.shape[1], extras)
+        return self.scores_from_raw(raw, extras)
+
+    # -- the shared GLR scoring (``scoring=glr``) -----------------------------------------
+    def residual_stride(self) -> int:
+        """Samples per value of the model's ``residual`` raw output (MSCRED: one per step)."""
+        return 1
+
+    def glr_scores(self, raw: dict[str, NDArray[Any]], n_steps: int, extras: bool) -> Scores:
+        """``scoring=glr``: the model's signed residual ``raw["residual"]`` (input minus
+        reconstruction, (N, T / stride, C)) standardised by a noise scale estimated from it
+        (window median removed, at most one change of level per window and channel) and tested
+        for a spike and 5–20-sample boxes by the calibrated GLR scan
+        (:class:`railwatch.scoring.residual.ResidualGLR`); point = max over channels, instance =
+        max over time. Nothing is fitted: the scan is calibrated on simulated N(0, 1) windows."""
+        from railwatch.scoring.residual import ResidualGLR
+
+        channel = ResidualGLR(seed=self.config.seed).sample_scores(
+            raw["residual"], self.residual_stride(), n_steps)
+        point = reduce_point_max(channel)
+        return Scores(instance=reduce_instance_max(point), point=point, channel=channel,
+                      extras={"residual": raw["residual"]} if extras else {})
 
     def _state_dict(self) -> dict[str, torch.Tensor]:
         return {k: v.detach().cpu() for k, v in self.model_.state_dict().items()}

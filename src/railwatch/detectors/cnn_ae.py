@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from torch import nn
 
 from railwatch.detectors.base import (
+    GLR_SCORING,
     DetectorConfig,
     Scores,
     TorchDetector,
@@ -52,6 +53,8 @@ class CNNAEConfig(TrainConfig):
     epochs: int = 30
     lr: float = 3e-3
     patience: int = 5
+    scoring: str = "paper"  # "paper" (the standardised squared error below) or "glr" (the
+    # shared GLR scan of the signed residual, scoring=glr in docs/detectors.md)
 
 
 class ConvAutoencoder(nn.Module):
@@ -99,6 +102,8 @@ def window_relative(sq_error: NDArray[Any]) -> NDArray[Any]:
 class CNNAutoencoder(TorchDetector):
     Config: ClassVar[type[DetectorConfig]] = CNNAEConfig
     config: CNNAEConfig  # type: ignore[assignment]
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
+    scoring_modes: ClassVar[tuple[str, ...]] = ("paper", GLR_SCORING)
 
     def build(self, n_steps: int, n_channels: int) -> nn.Module:
         cfg = self.config
@@ -111,15 +116,15 @@ class CNNAutoencoder(TorchDetector):
         return nn.functional.mse_loss(self.model_(noisy), xb)
 
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {"sq_error": (self.model_(xb) - xb) ** 2}  # (B, T, C)
+        return {"residual": xb - self.model_(xb)}  # (B, T, C)
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
-        r = window_relative(raw["sq_error"])
+        r = window_relative(raw["residual"] ** 2)
         self.stats_["error_mean"] = r.mean(axis=(0, 1))
         self.stats_["error_std"] = r.std(axis=(0, 1))
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
-        channel = standardize(window_relative(raw["sq_error"]), self.stats_["error_mean"],
+        channel = standardize(window_relative(raw["residual"] ** 2), self.stats_["error_mean"],
                               self.stats_["error_std"]).astype(np.float32)
         point = reduce_point_max(channel)
         return Scores(instance=reduce_instance_max(point), point=point, channel=channel)

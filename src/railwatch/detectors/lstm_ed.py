@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from torch import nn
 
 from railwatch.detectors.base import (
+    GLR_SCORING,
     DetectorConfig,
     Scores,
     TorchDetector,
@@ -53,6 +54,8 @@ class LSTMEDConfig(TrainConfig):
     ridge: float = 1e-4  # added to Σ's diagonal, relative to its mean variance
     epochs: int = 20
     lr: float = 3e-3
+    scoring: str = "paper"  # "paper" (the score above) or "glr" (the shared GLR scan of the
+    # signed residual: scoring=glr in docs/detectors.md)
 
 
 class EncoderDecoder(nn.Module):
@@ -145,6 +148,8 @@ def mahalanobis(errors: NDArray[Any], mu: NDArray[Any], precision: NDArray[Any])
 class LSTMEncoderDecoder(TorchDetector):
     Config: ClassVar[type[DetectorConfig]] = LSTMEDConfig
     config: LSTMEDConfig  # type: ignore[assignment]
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
+    scoring_modes: ClassVar[tuple[str, ...]] = ("paper", GLR_SCORING)
 
     def build(self, n_steps: int, n_channels: int) -> nn.Module:
         return EncoderDecoder(n_channels, self.config.hidden)
@@ -157,16 +162,16 @@ class LSTMEncoderDecoder(TorchDetector):
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
         xs = split_segments(xb, self.config.segment)
         rec = merge_segments(self.model_(xs, teacher_forcing=False), xb.shape[0], xb.shape[1])
-        return {"abs_error": (rec - xb).abs()}  # (B, T, C)
+        return {"residual": xb - rec}  # (B, T, C)
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
-        mu, cov = fit_gaussian(raw["abs_error"], self.config.ridge)
+        mu, cov = fit_gaussian(np.abs(raw["residual"]), self.config.ridge)
         self.stats_["error_mean"] = mu
         self.stats_["error_precision"] = np.linalg.inv(cov)
         self.stats_["error_std"] = np.sqrt(np.diag(cov))
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
-        e = raw["abs_error"]
+        e = np.abs(raw["residual"])
         mu = self.stats_["error_mean"]
         point = mahalanobis(e, mu, self.stats_["error_precision"]).astype(np.float32)
         channel = ((e - mu) / self.stats_["error_std"]).astype(np.float32)

@@ -31,6 +31,11 @@ Pipeline (``spec/detectors.md``, "MSCRED"), for windows ``X`` (N, T, C):
    tie-breaker in [0, 1) that never outranks one more broken entry. Each step's score covers its
    ``gap`` samples (``point``); ``channel[..., c]`` is the same score computed on residual row
    ``c`` (real channels only). ``instance`` = max over time of ``point`` (the spec's default).
+5. ``scoring="glr"`` (not the paper's): MSCRED reconstructs matrices, not samples, so its signed
+   residual is the diagonal of the smallest scale's residual matrix, each channel's local power
+   over the ``w`` samples of a step (``w = gap = 10``: the steps do not overlap), one value per
+   ``gap`` samples; the shared GLR scan tests it at that resolution
+   (``ResidualGLR.sample_scores``).
 
 CPU cost. The input-to-hidden convolutions of the ConvLSTMs and the encoder run once per step and
 are shared by the (up to) five sequences that contain that step; only the hidden-to-hidden
@@ -51,6 +56,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from railwatch.detectors.base import (
+    GLR_SCORING,
     DetectorConfig,
     FloatArray,
     Scores,
@@ -76,6 +82,7 @@ class MSCREDConfig(TrainConfig):
     epochs: int = 4  # CPU budget: every step is its own 5-step sequence (see CPU cost)
     lr: float = 3e-3
     patience: int = 5
+    scoring: str = "paper"  # "paper" (broken entries, 4. above) or "glr" (5. above)
 
 
 # ----------------------------------------------------------------------------- signature matrices
@@ -244,6 +251,8 @@ class MSCRED(TorchDetector):
     Config: ClassVar[type[DetectorConfig]] = MSCREDConfig
     config: MSCREDConfig  # type: ignore[assignment]
     normalize: ClassVar[bool] = False  # min-max normalisation instead (see the module docstring)
+    scoring_fields: ClassVar[tuple[str, ...]] = ("contamination", "scoring")
+    scoring_modes: ClassVar[tuple[str, ...]] = ("paper", GLR_SCORING)
 
     def _fit(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
         lo, hi = X.min(axis=(0, 1)), X.max(axis=(0, 1))  # (C,) per-channel training range
@@ -292,14 +301,19 @@ class MSCRED(TorchDetector):
 
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
         target, recon = self._reconstruct(xb)
-        return {"residual": (recon[:, :, 0] - target[:, :, 0]) ** 2}  # (B, K, C, C), smallest w
+        diff = target[:, :, 0] - recon[:, :, 0]  # (B, K, C, C), smallest w
+        return {"sq_residual": diff**2,
+                "residual": torch.diagonal(diff, dim1=-2, dim2=-1)}  # (B, K, C): local power
+
+    def residual_stride(self) -> int:
+        return self.config.gap
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
-        theta = np.quantile(raw["residual"], self.config.theta_quantile)
+        theta = np.quantile(raw["sq_residual"], self.config.theta_quantile)
         self.stats_["theta"] = np.array(max(float(theta), 1e-12))
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
-        r = raw["residual"]  # (N, K, C, C)
+        r = raw["sq_residual"]  # (N, K, C, C)
         theta = float(self.stats_["theta"])
         step = broken_score(r, theta, axis=(2, 3))  # (N, K)
         rows = broken_score(r, theta, axis=(3,))  # (N, K, C): residual row of each channel

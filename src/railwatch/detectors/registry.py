@@ -13,6 +13,7 @@ from typing import Any
 
 from railwatch.detectors.base import Detector, config_from_dict
 from railwatch.errors import RailwatchError
+from railwatch.scoring import GLR_SUFFIX
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,17 @@ REGISTRY: dict[str, Entry] = {
                     "ceiling (synthetic data only): GLR test on the residual whitened with the "
                     "generator's true nuisance signal and noise std"),
 }
+
+#: The reconstruction models that also get a ``NAME+glr`` row: the same trained network (bench
+#: cells share it), its signed residual scored by the scan every GLR detector shares instead of
+#: its own score, so that the benchmark separates what the model contributes from the scoring.
+GLR_VARIANTS = ("lstm-ed", "cnn-ae", "mscred", "anomaly-transformer", "aft-reconstruction")
+REGISTRY.update({
+    f"{name}{GLR_SUFFIX}": Entry(REGISTRY[name].target,
+                         f"{name}'s residual scored by the shared GLR scan (noise scale with one "
+                         "change point, spike and 5-20-sample box tests) instead of its own score",
+                         {**REGISTRY[name].overrides, "scoring": "glr"})
+    for name in GLR_VARIANTS})
 
 
 def names() -> list[str]:

@@ -13,6 +13,7 @@ from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.scoring import GLR_SUFFIX
 from railwatch.synthetic import STAGES, SyntheticSet, generate
 from railwatch.synthetic.anomalies import LOCAL, SPIKE
 
@@ -127,7 +128,11 @@ def auc_vs_stage_figure(
     stages = sorted({int(r["stage"]) for r in records})
     fig = Figure(figsize=(10, 5.5), layout="constrained")
     ax = fig.subplots()
-    colours = dict(zip(detectors, _palette(len(detectors)), strict=True))
+    # a NAME+glr row (the same model, scored by the shared GLR scan) takes NAME's colour, dashed
+    base = {d: d.removesuffix(GLR_SUFFIX) if d.removesuffix(GLR_SUFFIX) in detectors else d
+            for d in detectors}
+    own = [d for d in detectors if base[d] == d]
+    colours = dict(zip(own, _palette(len(own)), strict=True))
     for d in detectors:
         stats = [mean_std(agg.get((s, d), [])) for s in stages]
         mean = np.array([m for m, _ in stats])
@@ -135,8 +140,9 @@ def auc_vs_stage_figure(
         if d == "oracle":
             ax.plot(stages, mean, "k--", lw=2.2, label="oracle (ceiling)")
             continue
-        ax.errorbar(stages, mean, yerr=std, marker="o", ms=4, lw=1.6, capsize=3,
-                    color=colours[d], label=d)
+        variant = base[d] != d
+        ax.errorbar(stages, mean, yerr=std, marker="s" if variant else "o", ms=4, lw=1.6,
+                    capsize=3, color=colours[base[d]], ls="--" if variant else "-", label=d)
         if metric == "auc_instance" and d in PAPER_TABLE1:
             ax.plot(stages, [PAPER_TABLE1[d][s - 1] for s in stages], ":", lw=1.2,
                     color=colours[d], alpha=0.7)
@@ -145,7 +151,8 @@ def auc_vs_stage_figure(
                   "6 odds · 7 HF bursts · 8 impulses)", fontsize=9)
     ax.set_ylabel(metric)
     ax.grid(alpha=0.3)
-    ax.set_title(f"{metric} per stage (dotted: the paper's Table I)")
+    ax.set_title(f"{metric} per stage (dotted: the paper's Table I; dashed: a model's residual "
+                 "scored by the shared GLR scan)")
     ax.legend(fontsize=8, ncols=2, loc="lower left")
     return fig
 

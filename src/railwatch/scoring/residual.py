@@ -25,7 +25,8 @@ windows of the same length, so a detector can switch to this scoring after train
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -148,3 +149,29 @@ class ResidualGLR:
                                        self.seed))
         norms = [[np.sqrt(L) for L in fam] for fam in fams]
         return scan(g, fams, norms, counts).astype(np.float32)
+
+    def sample_scores(self, residual: NDArray[np.floating], stride: int = 1,
+                      n_steps: int | None = None) -> NDArray[np.float32]:
+        """:meth:`channel_scores` of a residual with one value per ``stride`` samples, as
+        per-sample scores (N, ``n_steps``, C).
+
+        A model that reconstructs aggregates (MSCRED's signature matrices, one step per 10
+        samples) has a residual per step, not per sample. At that resolution a spike covers one
+        step and a box of ``min_box .. max_box`` samples ``ceil((L − 1) / stride) + 1`` steps at
+        most, so the box family becomes those step counts; each step's score covers its
+        ``stride`` samples.
+
+        >>> r = np.zeros((1, 20, 1)); r[0, 7] = 30.0
+        >>> s = ResidualGLR(null_windows=200).sample_scores(r + np.random.default_rng(0)
+        ...     .standard_normal(r.shape), stride=10, n_steps=200)
+        >>> s.shape, int(s[0, :, 0].argmax()) // 10
+        ((1, 200, 1), 7)
+        """
+        if stride == 1:
+            return self.channel_scores(residual)
+        steps = replace(self, min_box=math.ceil((self.min_box - 1) / stride) + 1,
+                        max_box=math.ceil((self.max_box - 1) / stride) + 1)
+        per_step = steps.channel_scores(residual)  # (N, K, C)
+        n_steps = n_steps if n_steps is not None else per_step.shape[1] * stride
+        index = np.minimum(np.arange(n_steps) // stride, per_step.shape[1] - 1)
+        return per_step[:, index]
