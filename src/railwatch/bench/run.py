@@ -174,7 +174,7 @@ def side_arrays(det: Detector, data: SyntheticSet) -> dict[str, Any] | None:
 
 def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and evaluate one detector on one stage and seed: (record, small arrays)."""
-    from railwatch.evaluation.metrics import evaluate_scores, score_seconds
+    from railwatch.evaluation.metrics import evaluate_scores, timed_scores
 
     cell_started = time.perf_counter()
     train = dataset(cache, cell.stage, cell.seed, preset.n_train, "train")
@@ -185,9 +185,8 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
         return side_arrays(det, d)
 
     det, fit_s, trained_by = fit_or_reuse(det, cell, preset, cache, train.X, ctx(train))
-    scores = det.score(test.X, ctx(test))
+    score_s, scores = timed_scores(det, test.X, ctx(test), repeats=preset.timing_repeats)
     metrics = evaluate_scores(test.y, test.mask, test.channel, scores, det.threshold_)
-    score_s = score_seconds(det, test.X, ctx(test), repeats=preset.timing_repeats)
 
     examples = np.flatnonzero(test.y)[:N_EXAMPLES]
     arrays: dict[str, Any] = {

@@ -51,6 +51,7 @@ from railwatch.detectors.base import (
 )
 from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
+from railwatch.scoring.residual import masked_median
 
 F64 = NDArray[np.float64]
 MAD_TO_STD = 1.4826  # σ = 1.4826 · median |e − median e| for Gaussian e
@@ -130,8 +131,7 @@ def noise_scale(e: F64, min_segment: int, winsor: float) -> F64:
     split = k[np.argmax(loglik, axis=1)][:, None]  # (B, 1)
     first = np.arange(n_steps)[None, :] < split  # (B, T)
     absdev = np.abs(e)
-    s1 = np.nanmedian(np.where(first, absdev, np.nan), axis=1, keepdims=True)
-    s2 = np.nanmedian(np.where(first, np.nan, absdev), axis=1, keepdims=True)
+    s1, s2 = masked_median(absdev, first), masked_median(absdev, ~first)
     return MAD_TO_STD * np.where(first, s1, s2) + 1e-12
 
 

@@ -115,23 +115,30 @@ def loc_channel(
     return float(np.mean(np.asarray(channel)[anomalous] == np.asarray(true_channel)[anomalous]))
 
 
-def time_call(fn: Callable[[], Any], repeats: int = 3) -> float:
-    """Median wall seconds of ``fn()`` over ``repeats`` runs."""
-    times = []
+def timed(fn: Callable[[], Any], repeats: int = 3) -> tuple[float, Any]:
+    """Median wall seconds of ``fn()`` over ``repeats`` runs, and what the last run returned."""
+    times, result = [], None
     for _ in range(repeats):
         start = time.perf_counter()
-        fn()
+        result = fn()
         times.append(time.perf_counter() - start)
-    return float(np.median(times))
+    return float(np.median(times)), result
 
 
 def score_seconds(detector: Any, X: NDArray[Any], context: Any = None, repeats: int = 3) -> float:
     """``score_s``: wall seconds to score all of ``X`` at the detector's batch size (32 by
     default) after a warm-up batch, median of ``repeats``."""
+    return timed_scores(detector, X, context, repeats)[0]
+
+
+def timed_scores(detector: Any, X: NDArray[Any], context: Any = None,
+                 repeats: int = 3) -> tuple[float, Any]:
+    """:func:`score_seconds` and the scores of ``X`` it computed (scoring is deterministic, so
+    a benchmark cell scores its test set once, timed)."""
     batch = detector.config.batch_size
     warm_ctx = {k: v[:batch] for k, v in context.items()} if context else None
     detector.score(X[:batch], warm_ctx)
-    return time_call(lambda: detector.score(X, context), repeats)
+    return timed(lambda: detector.score(X, context), repeats)
 
 
 def evaluate_scores(
