@@ -41,3 +41,17 @@ def brute_family_max(g: np.ndarray, lengths: tuple[int, ...]) -> np.ndarray:
                         z = abs(g[i, s:s + L, ch].sum()) / np.sqrt(L)
                         out[i, t, ch] = max(out[i, t, ch], z)
     return out
+
+
+def rough_patches(windows: np.ndarray, seed: int = 0) -> np.ndarray:
+    """``windows`` with a rough patch on channel 0: 0.3-1 s (30-100 samples at 100 Hz) of extra
+    broadband vibration (N(0, 1)), as a pothole or a corrugated stretch gives. It makes the window
+    louder without a spike or a box: a detector must score it above the quiet windows, which a
+    per-window normalisation would hide (the loud-window tests)."""
+    rng = np.random.default_rng(seed)
+    rough = windows.copy()
+    for w in rough:
+        length = int(rng.integers(30, 101))
+        start = int(rng.integers(0, w.shape[0] - length))
+        w[start:start + length, 0] += rng.normal(0.0, 1.0, length)
+    return rough

@@ -7,6 +7,7 @@ import pytest
 import torch
 from sklearn.metrics import roc_auc_score
 
+from conftest import rough_patches
 from railwatch.detectors import create
 from railwatch.detectors.context_glr import BlindSpotNet, inject_defects
 from railwatch.errors import RailwatchError
@@ -124,13 +125,7 @@ def test_a_loud_window_scores_above_quiet_normal_ones() -> None:
     normal windows, which a per-window normalisation would hide."""
     train, test = generate(1, 500, seed=0), generate(1, 200, seed=1)
     det = create("context-glr", {"epochs": 10, "width": 32, "progress": False}).fit(train.X)
-    rng = np.random.default_rng(0)
     normal = test.X[test.y == 0][:60]
-    rough = normal.copy()
-    for w in rough:
-        length = int(rng.integers(30, 101))
-        start = int(rng.integers(0, 200 - length))
-        w[start:start + length, 0] += rng.normal(0.0, 1.0, length)
-    quiet, loud = det.score(normal).instance, det.score(rough).instance
+    quiet, loud = det.score(normal).instance, det.score(rough_patches(normal)).instance
     assert roc_auc_score(np.r_[np.zeros(60), np.ones(60)], np.r_[quiet, loud]) >= 0.95
     assert np.median(loud) > np.quantile(quiet, 0.9)

@@ -126,7 +126,7 @@ def auc_vs_stage_figure(
 
     agg = aggregate(records, metric)
     stages = sorted({int(r["stage"]) for r in records})
-    fig = Figure(figsize=(10, 5.5), layout="constrained")
+    fig = Figure(figsize=(12, 5.5), layout="constrained")
     ax = fig.subplots()
     # a NAME+glr row (the same model, scored by the shared GLR scan) takes NAME's colour, dashed
     base = {d: d.removesuffix(GLR_SUFFIX) if d.removesuffix(GLR_SUFFIX) in detectors else d
@@ -153,7 +153,7 @@ def auc_vs_stage_figure(
     ax.grid(alpha=0.3)
     ax.set_title(f"{metric} per stage (dotted: the paper's Table I; dashed: a model's residual "
                  "scored by the shared GLR scan)")
-    ax.legend(fontsize=8, ncols=2, loc="lower left")
+    ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))  # beside the lines
     return fig
 
 
