@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from railwatch.detectors.base import Detector, config_from_dict
+from railwatch.detectors.base import GLR_SCORING, Detector, config_from_dict
 from railwatch.errors import RailwatchError
 from railwatch.scoring import GLR_SUFFIX
 
@@ -66,7 +66,7 @@ REGISTRY.update({
     f"{name}{GLR_SUFFIX}": Entry(REGISTRY[name].target,
                          f"{name}'s residual scored by the shared GLR scan (noise scale with one "
                          "change point, spike and 5-20-sample box tests) instead of its own score",
-                         {**REGISTRY[name].overrides, "scoring": "glr"})
+                         {**REGISTRY[name].overrides, "scoring": GLR_SCORING})
     for name in GLR_VARIANTS})
 
 
