@@ -151,8 +151,11 @@ def auc_vs_stage_figure(
                   "6 odds · 7 HF bursts · 8 impulses)", fontsize=9)
     ax.set_ylabel(metric)
     ax.grid(alpha=0.3)
-    ax.set_title(f"{metric} per stage (dotted: the paper's Table I; dashed: a model's residual "
-                 "scored by the shared GLR scan)")
+    notes = (["dotted: the paper's Table I"] if metric == "auc_instance"
+             and any(d in PAPER_TABLE1 for d in detectors) else []) \
+        + (["dashed: a model's residual scored by the shared GLR scan"]
+           if any(base[d] != d for d in detectors) else [])
+    ax.set_title(f"{metric} per stage" + (f" ({'; '.join(notes)})" if notes else ""))
     ax.legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))  # beside the lines
     return fig
 
