@@ -412,19 +412,28 @@ def export(model: Path, out: Path) -> None:
 @click.option("--fs", type=float, default=2000.0, show_default=True, help="Sampling rate (Hz).")
 @click.option("--defect-every", "every_s", type=float, default=10.0, show_default=True,
               help="Mean seconds between defects.")
+@click.option("--stage", type=click.IntRange(5, 8), default=5, show_default=True,
+              help="Benchmark stage carried into continuous time: 5 signals and changing noise, "
+                   "6 + channel odds by defect kind, 7 + HF bursts at rough spots of the track, "
+                   "8 + wheel-periodic impulses.")
+@click.option("--loud-stretches", is_flag=True,
+              help="Rough sections of track (200-1500 m, 4 in 10) with 2-4x the noise.")
 @click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
               help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks).")
 @click.pass_obj
-def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float,
-                 out: Path) -> None:
+def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float, stage: int,
+                 loud_stretches: bool, out: Path) -> None:
     """Synthesise a long six-channel field-rate run with defects at known times and positions.
 
     \b
     Writes OUT, OUT's layout (<name>.layout.toml) and the true defects (<name>.defects.csv).
     Stage-5 signals (axle, bogie, body groups) with a speed profile and changing noise; defects
     one every 10 s on average: spikes of +-3-4, local deviations of +-1.5-2 (0.05-0.2 s).
-    Example:
+    --stage 7 and 8 add the later stages' nuisance, tied to the track and the wheels;
+    --loud-stretches makes the noise level of whole sections of track change.
+    Examples:
       railwatch generate-run --minutes 10 --seed 1 --out train1.parquet
+      railwatch generate-run --stage 8 --loud-stretches --seed 4 --out rough.parquet
     """
     import csv
 
@@ -440,7 +449,8 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
     if fs < 100:
         raise RailwatchError(f"--fs must be at least 100 Hz (a spike lasts 0.01 s), got {fs:g}")
     writable_file(out)
-    run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s)
+    run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s, stage=stage,
+                         loud_stretches=loud_stretches)
     stem = out.with_suffix("")
     layout_path, truth_path = Path(f"{stem}.layout.toml"), Path(f"{stem}.defects.csv")
     with atomic_path(layout_path) as tmp:

@@ -26,27 +26,32 @@ def fitted():  # type: ignore[no-untyped-def]
 
 def _outputs(net: BlindSpotNet, x: torch.Tensor) -> torch.Tensor:
     with torch.no_grad():
-        mu, log_scale = net(x)
-    return torch.cat([mu, log_scale], dim=2)
+        return torch.cat(net(x), dim=2)
 
 
-@pytest.mark.parametrize("gap", [0, 3])
-def test_blind_spot_the_samples_under_test_do_not_change_their_own_prediction(gap: int) -> None:
+@pytest.mark.parametrize(("gap", "guard"), [(0, 0), (0, 20), (3, 8)])
+def test_blind_spot_the_samples_under_test_do_not_change_their_own_prediction(
+        gap: int, guard: int) -> None:
+    """μ and the spike's scale at t are blind to t ± gap, the boxes' scale to t ± guard."""
     torch.manual_seed(0)
-    net = BlindSpotNet(width=8, dilations=(1, 2, 4, 8), kernel=3, gap=gap).eval()
+    net = BlindSpotNet(width=8, dilations=(1, 2, 4, 8), kernel=3, gap=gap, guard=guard).eval()
     x = torch.randn(2, 64, 3)
-    base = _outputs(net, x)
-    for t in (0, 17, 40, 63):
-        band = slice(max(t - gap, 0), t + gap + 1)
-        changed = x.clone()
-        changed[:, band] += 50.0 * torch.randn_like(changed[:, band])  # every channel
-        out = _outputs(net, changed)
-        torch.testing.assert_close(out[:, t], base[:, t], rtol=0, atol=0)
-        # ... while the samples just outside the band do change it: the test can fail
-        outside = x.clone()
-        outside[:, min(t + gap + 1, 63)] += 50.0
-        outside[:, max(t - gap - 1, 0)] += 50.0
-        assert not torch.equal(_outputs(net, outside)[:, t], base[:, t])
+    with torch.no_grad():
+        base = net(x)
+    for which, half in ((0, gap), (1, gap), (2, guard)):  # μ, log scale, log guard scale
+        for t in (0, 17, 40, 63):
+            band = slice(max(t - half, 0), t + half + 1)
+            changed = x.clone()
+            changed[:, band] += 50.0 * torch.randn_like(changed[:, band])  # every channel
+            with torch.no_grad():
+                out = net(changed)[which]
+            torch.testing.assert_close(out[:, t], base[which][:, t], rtol=0, atol=0)
+            # ... while the samples just outside the band do change it: the test can fail
+            outside = x.clone()
+            outside[:, min(t + half + 1, 63)] += 50.0
+            outside[:, max(t - half - 1, 0)] += 50.0
+            with torch.no_grad():
+                assert not torch.equal(net(outside)[which][:, t], base[which][:, t])
 
 
 def test_blind_spot_holds_for_the_trained_model(fitted) -> None:  # type: ignore[no-untyped-def]

@@ -13,6 +13,7 @@ from railwatch.scoring.glr import (
     families,
     family_max,
     log10_familywise_p,
+    scan,
 )
 
 
@@ -56,3 +57,17 @@ def test_effective_counts_spike_family_is_the_window_length() -> None:
     spike, box = effective_counts(200, families(5, 20), n_windows=4000, alpha=0.05, seed=0)
     assert 170 < spike < 230  # independent samples: m = T
     assert spike < box < sum(200 - L + 1 for L in range(5, 21))  # overlapping boxes
+
+
+def test_scan_takes_one_residual_per_family() -> None:
+    """A spike and the boxes may test residuals standardised by different noise scales: each
+    family's profile comes from its own residual only."""
+    rng = np.random.default_rng(3)
+    g, other = rng.standard_normal((2, 5, 60, 2))
+    fams, counts = families(5, 8), np.array([60.0, 40.0])
+    norms = [[np.sqrt(L) for L in fam] for fam in fams]
+    np.testing.assert_array_equal(scan([g, g], fams, norms, counts), scan(g, fams, norms, counts))
+    mixed = scan([g, other], fams, norms, counts)
+    spike_only = scan(g, fams[:1], norms[:1], counts[:1])
+    box_only = scan(other, fams[1:], norms[1:], counts[1:])
+    np.testing.assert_array_equal(mixed, np.maximum(spike_only, box_only))

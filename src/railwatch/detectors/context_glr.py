@@ -60,6 +60,8 @@ from railwatch.errors import RailwatchError
 from railwatch.scoring.residual import MAD_NORMAL, ResidualGLR
 
 SCALES = ("learned", "changepoint")
+#: The network's two noise scales: the spike test's (blind to t ± gap), the boxes' (t ± guard).
+LEARNED_SCALES = ("scale", "guard_scale")
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,7 @@ class ContextGLRConfig(TrainConfig):
     dilations: tuple[int, ...] = (1, 2, 4, 8, 16, 32)  # one residual layer each, per direction
     kernel: int = 3
     gap: int = 0  # the prediction of t sees nothing within gap samples of t (0: t itself)
+    guard: int = 20  # the noise scale of t sees nothing within guard samples of t
     inject: float = 0.5  # share of training (window, channel) pairs given a spike or a box
     inject_size: tuple[float, float] = (0.3, 6.0)  # its size, log-uniform, in channel stds
     dof: float = 4.0  # degrees of freedom of the Student-t likelihood
@@ -101,29 +104,44 @@ class CausalStack(nn.Module):
         return h
 
 
-class BlindSpotNet(nn.Module):
-    """(B, T, C) -> prediction μ and log scale (B, T, C), both blind to ``t ± gap``.
+def _head(width: int, outputs: int) -> nn.Module:
+    return nn.Sequential(nn.Conv1d(2 * width, width, 1), nn.GELU(), nn.Conv1d(width, outputs, 1))
 
+
+class BlindSpotNet(nn.Module):
+    """(B, T, C) -> prediction μ and log noise scale, both blind to ``t ± gap``, and a second log
+    noise scale blind to ``t ± guard`` (B, T, C each).
+
+    The spike test at ``t`` uses the first scale: a one-sample defect at ``t`` cannot reach it.
+    A box of up to ``guard`` samples would raise the first scale of its own samples (their
+    neighbours are in it), so the box test uses the second, read from the same features
+    ``guard − gap`` samples further out on each side: a guard band, as a CFAR detector leaves
+    guard cells between the cell under test and the cells that estimate its noise.
     Channel-independent: every channel is its own series through the same weights (as
     PatchTST's channel independence), so a six-channel window is six training series and the
     network fits any channel count.
     """
 
-    def __init__(self, width: int, dilations: tuple[int, ...], kernel: int, gap: int) -> None:
+    def __init__(self, width: int, dilations: tuple[int, ...], kernel: int, gap: int,
+                 guard: int) -> None:
         super().__init__()
         self.forwards = CausalStack(1, width, dilations, kernel, gap)
         self.backwards = CausalStack(1, width, dilations, kernel, gap)
-        self.head = nn.Sequential(nn.Conv1d(2 * width, width, 1), nn.GELU(),
-                                  nn.Conv1d(width, 2, 1))
+        self.extra = guard - gap
+        self.head, self.guard_head = _head(width, 2), _head(width, 1)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         b, t, c = x.shape
         h = x.transpose(1, 2).reshape(b * c, 1, t)  # one series per (window, channel)
         past = self.forwards(h)
         future = self.backwards(h.flip(2)).flip(2)
-        out = self.head(torch.cat([past, future], dim=1))  # (B·C, 2, T)
-        out = out.reshape(b, c, 2, t).permute(0, 3, 1, 2)  # (B, T, C, 2)
-        return out[..., 0], out[..., 1]
+        near = self.head(torch.cat([past, future], dim=1))  # (B·C, 2, T): μ, log scale
+        k = self.extra  # past features from k samples earlier, future ones from k later
+        far = torch.cat([nn.functional.pad(past, (k, 0))[:, :, :t],
+                         nn.functional.pad(future, (0, k))[:, :, k:]], dim=1)
+        out = torch.cat([near, self.guard_head(far)], dim=1)  # (B·C, 3, T)
+        out = out.reshape(b, c, 3, t).permute(0, 3, 1, 2)  # (B, T, C, 3)
+        return out[..., 0], out[..., 1], out[..., 2]
 
 
 def inject_defects(x: torch.Tensor, share: float, size: tuple[float, float], min_box: int,
@@ -161,7 +179,10 @@ class ContextGLR(TorchDetector):
         if not 0.0 <= cfg.inject <= 1.0 or not 0 < cfg.inject_size[0] <= cfg.inject_size[1]:
             raise RailwatchError("inject must be a share in [0, 1] and inject_size two positive "
                                  "sizes, the smaller first")
-        return BlindSpotNet(cfg.width, cfg.dilations, cfg.kernel, cfg.gap)
+        if not 0 <= cfg.gap <= cfg.guard:
+            raise RailwatchError(f"gap ({cfg.gap}) and guard ({cfg.guard}) must be 0 <= gap <= "
+                                 "guard samples")
+        return BlindSpotNet(cfg.width, cfg.dilations, cfg.kernel, cfg.gap, cfg.guard)
 
     def make_optimizer(self) -> torch.optim.Optimizer:
         """Adam with a cosine decay, and the generator of the training-only randomness (channel
@@ -184,11 +205,15 @@ class ContextGLR(TorchDetector):
             self.__dict__.pop("noise_gen_", None)
 
     def nll(self, x: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
-        """Student-t negative log-likelihood of ``x`` under the prediction from ``seen``."""
-        mu, log_scale = self.model_(seen)
-        z2 = ((x - mu) * torch.exp(-log_scale)) ** 2
+        """Student-t negative log-likelihood of ``x`` under the prediction from ``seen``, the
+        mean of the two noise scales' (both model the same residual)."""
+        mu, log_scale, log_guard_scale = self.model_(seen)
         nu = self.config.dof
-        return (log_scale + 0.5 * (nu + 1.0) * torch.log1p(z2 / nu)).mean()
+        total = torch.zeros((), device=x.device)
+        for ls in (log_scale, log_guard_scale):
+            z2 = ((x - mu) * torch.exp(-ls)) ** 2
+            total = total + (ls + 0.5 * (nu + 1.0) * torch.log1p(z2 / nu)).mean()
+        return total / 2
 
     def loss(self, xb: torch.Tensor) -> torch.Tensor:
         cfg = self.config
@@ -205,8 +230,9 @@ class ContextGLR(TorchDetector):
         return self.nll(xb, seen)
 
     def raw(self, xb: torch.Tensor) -> dict[str, torch.Tensor]:
-        mu, log_scale = self.model_(xb)
-        return {"residual": xb - mu, "scale": torch.exp(log_scale)}
+        mu, log_scale, log_guard_scale = self.model_(xb)
+        return {"residual": xb - mu, "scale": torch.exp(log_scale),
+                "guard_scale": torch.exp(log_guard_scale)}
 
     def _scan(self) -> ResidualGLR:
         cfg = self.config
@@ -214,24 +240,32 @@ class ContextGLR(TorchDetector):
                            null_windows=cfg.null_windows, alpha=cfg.null_alpha, seed=cfg.seed)
 
     @staticmethod
-    def _learned_z(raw: dict[str, NDArray[Any]]) -> NDArray[np.float64]:
-        """Residual over the learned scale, window median removed (N, T, C)."""
-        z = raw["residual"].astype(np.float64) / np.maximum(raw["scale"], 1e-6)
+    def _learned_z(raw: dict[str, NDArray[Any]], key: str) -> NDArray[np.float64]:
+        """Residual over the learned scale ``key``, window median removed (N, T, C)."""
+        z = raw["residual"].astype(np.float64) / np.maximum(raw[key], 1e-6)
         return z - np.median(z, axis=1, keepdims=True)
 
     def fit_statistics(self, raw: dict[str, NDArray[Any]]) -> None:
-        spread = np.median(np.abs(self._learned_z(raw)), axis=(0, 1)) / MAD_NORMAL
-        self.stats_["z_spread"] = np.where(spread > 1e-6, spread, 1.0).astype(np.float32)
+        for key in LEARNED_SCALES:
+            spread = np.median(np.abs(self._learned_z(raw, key)), axis=(0, 1)) / MAD_NORMAL
+            self.stats_[f"z_spread_{key}"] = np.where(spread > 1e-6, spread, 1.0).astype(
+                np.float32)
 
-    def standardized(self, raw: dict[str, NDArray[Any]]) -> NDArray[np.float64]:
-        """The residual in noise units (N, T, C), window median removed."""
+    def standardized(self, raw: dict[str, NDArray[Any]]
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The residual in noise units (N, T, C), window median removed: for the spike test and
+        for the box test."""
         if self.config.scale == "changepoint":
-            return self._scan().standardized(raw["residual"])
-        return self._learned_z(raw) / self.stats_["z_spread"].astype(np.float64)
+            g = self._scan().standardized(raw["residual"])
+            return g, g
+        spike, box = (self._learned_z(raw, key)
+                      / self.stats_[f"z_spread_{key}"].astype(np.float64)
+                      for key in LEARNED_SCALES)
+        return spike, box
 
     def scores_from_raw(self, raw: dict[str, NDArray[Any]], extras: bool) -> Scores:
-        channel = self._scan().scan(self.standardized(raw))
+        channel = self._scan().scan(*self.standardized(raw))
         point = reduce_point_max(channel)
-        more = {"residual": raw["residual"], "scale": raw["scale"]} if extras else {}
+        more = {k: raw[k] for k in ("residual", *LEARNED_SCALES)} if extras else {}
         return Scores(instance=reduce_instance_max(point), point=point, channel=channel,
                       extras=more)

@@ -176,22 +176,28 @@ def scale_counts(
 
 
 def scan(
-    g: FloatArray, fams: Sequence[Family], norms: Sequence[Sequence[FloatArray | float]],
-    counts: NDArray[np.float64],
+    g: FloatArray | Sequence[FloatArray], fams: Sequence[Family],
+    norms: Sequence[Sequence[FloatArray | float]], counts: NDArray[np.float64],
 ) -> FloatArray:
     """Calibrated GLR score (N, T, C): ``−log10`` family-wise p, maximised over the families.
 
-    ``norms[f][i]`` is the template norm of length ``fams[f][i]`` (see :func:`family_max`).
-    Families with a ``nan`` count are skipped. Both families get the same prior weight (the
-    benchmark draws spikes and local deviations half and half), so a weighted-Bonferroni
-    combination adds the same constant to both and is left out.
+    ``g`` is the residual every family tests, or one per family (a spike and a box may be
+    standardised by different noise scales). ``norms[f][i]`` is the template norm of length
+    ``fams[f][i]`` (see :func:`family_max`). Families with a ``nan`` count are skipped. Both
+    families get the same prior weight (the benchmark draws spikes and local deviations half and
+    half), so a weighted-Bonferroni combination adds the same constant to both and is left out.
     """
-    n = len(g)
-    out = np.empty(g.shape)
+    per_family = [g] * len(fams) if isinstance(g, np.ndarray) else list(g)
+    if len(per_family) != len(fams):
+        raise ValueError(f"{len(per_family)} residuals for {len(fams)} families")
+    shape = per_family[0].shape
+    n = shape[0]
+    out = np.empty(shape)
     for start in range(0, n, CHUNK):  # a chunk's arrays stay in the cache: twice as fast
         part = slice(start, start + CHUNK)
-        out[part] = _scan_chunk(g[part], fams, [[_rows(v, part, n) for v in fam_norms]
-                                                for fam_norms in norms], counts)
+        out[part] = _scan_chunk([gf[part] for gf in per_family], fams,
+                                [[_rows(v, part, n) for v in fam_norms] for fam_norms in norms],
+                                counts)
     return out
 
 
@@ -207,11 +213,11 @@ def _rows(value: FloatArray | float, part: slice, n: int) -> FloatArray | float:
 
 
 def _scan_chunk(
-    g: FloatArray, fams: Sequence[Family], norms: Sequence[Sequence[FloatArray | float]],
-    counts: NDArray[np.float64],
+    gs: Sequence[FloatArray], fams: Sequence[Family],
+    norms: Sequence[Sequence[FloatArray | float]], counts: NDArray[np.float64],
 ) -> FloatArray:
-    best = np.full(g.shape, -np.inf)
-    for fam, fam_norms, m in zip(fams, norms, counts, strict=True):
+    best = np.full(gs[0].shape, -np.inf)
+    for g, fam, fam_norms, m in zip(gs, fams, norms, counts, strict=True):
         if not np.isfinite(m):
             continue
         # the calibration is monotone in z, so it commutes with the maxima over boxes

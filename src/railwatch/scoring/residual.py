@@ -144,14 +144,17 @@ class ResidualGLR:
         """``−log10`` family-wise p of the best spike or box covering each sample (N, T, C)."""
         return self.scan(self.standardized(residual))
 
-    def scan(self, g: NDArray[np.floating]) -> NDArray[np.float32]:
-        """The calibrated scan of a residual already in noise units (N, T, C)."""
+    def scan(self, g: NDArray[np.floating],
+             g_box: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
+        """The calibrated scan of a residual already in noise units (N, T, C); ``g_box``, when
+        given, is the residual the boxes test (standardised by another noise scale)."""
         g = np.asarray(g, dtype=np.float64)
         fams = families(self.min_box, self.max_box)
         counts = np.array(null_counts(g.shape[1], fams, self.null_windows, self.alpha,
                                        self.seed))
         norms = [[np.sqrt(L) for L in fam] for fam in fams]
-        return scan(g, fams, norms, counts).astype(np.float32)
+        per_family = g if g_box is None else [g, np.asarray(g_box, dtype=np.float64)]
+        return scan(per_family, fams, norms, counts).astype(np.float32)
 
     def sample_scores(self, residual: NDArray[np.floating], stride: int = 1,
                       n_steps: int | None = None) -> NDArray[np.float32]:

@@ -17,6 +17,25 @@ Stage-5 signal into continuous time (``docs/recordings.md`` gives the choices):
 
 As in the generator's field-rate mode, parameters are per sample whatever the rate, so decimating a
 2000 Hz run to 100 Hz also lowers the white noise by √20.
+
+The later stages' nuisance comes in continuous time with ``stage`` (each draws from its own seed
+stream, so a stage-8 run is its stage-5 run plus the added components, same signal, noise and
+defects):
+
+- ``stage >= 6``: a defect's channel is drawn from the kind-specific odds (spikes favour the axle,
+  local deviations the body);
+- ``stage >= 7``: **HF bursts tied to track position**: per channel, rough spots along the track
+  (Poisson, one per 45 m on average, the benchmark's one per 2-s window at 22.5 m/s), each
+  0.05–0.2 s long at 22.5 m/s (1.1–4.5 m), a sine of the group's α and f_HF ranges whose
+  frequency and amplitude scale with speed as the base sinusoid's do;
+- ``stage >= 8``: **wheel-periodic impulses**: per channel, one truncated Gaussian impulse every
+  L = T · 22.5 m of travel (T, ω and β from the group's Stage-8 ranges at 22.5 m/s), so the
+  period in time is L / v; width ω · 22.5 / v, height β · v / 22.5.
+
+``loud_stretches`` adds **long stretches of rough track**: the track is cut into sections of
+200–1500 m (9–67 s at 22.5 m/s); each is rough with probability 0.4 and multiplies the white
+noise of every channel by U[2, 4] over its whole length. A detector that learned one noise level,
+or an event threshold fixed at training time, sees tens of seconds of louder signal.
 """
 
 from __future__ import annotations
@@ -29,11 +48,20 @@ from numpy.typing import NDArray
 
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.synthetic.stages import GROUPS
+from railwatch.synthetic.stages import GROUPS, P_LOCAL, P_SPIKE, GroupRanges
 
 CHANNELS = ("axle_1", "axle_2", "bogie_1", "bogie_2", "body_1", "body_2")
 CHANNEL_GROUPS = ("axle", "axle", "bogie", "bogie", "body", "body")
 MEAN_SPEED = 22.5  # m/s: speed at which f and A are the drawn values
+RUN_STAGES = (5, 6, 7, 8)  # the benchmark stages a run carries into continuous time
+
+#: HF bursts: mean spacing along the track (m) and length range at MEAN_SPEED (s).
+BURST_SPACING_M = 2.0 * MEAN_SPEED
+BURST_S = (0.05, 0.2)
+#: Loud stretches: section lengths (m), share of rough sections, noise gain on a rough one.
+STRETCH_M = (200.0, 1500.0)
+STRETCH_SHARE = 0.4
+STRETCH_GAIN = (2.0, 4.0)
 
 
 #: Columns of the true-defects table (one row per defect).
@@ -71,11 +99,18 @@ def synthesize_run(
     defect_every_s: float = 10.0,
     spike_offset: tuple[float, float] = (3.0, 4.0),
     deviation_offset: tuple[float, float] = (1.5, 2.0),
+    stage: int = 5,
+    loud_stretches: bool = False,
 ) -> Run:
     """A continuous six-channel run with defects at known times; see the module docstring."""
     if fs < 100.0:
         raise RailwatchError(f"a run needs fs >= 100 Hz (a spike lasts 0.01 s), got {fs:g}")
+    if stage not in RUN_STAGES:
+        raise RailwatchError(f"a run carries stage 5, 6, 7 or 8 into continuous time, got {stage}")
     rng = np.random.default_rng(seed)
+    # Added components draw from their own streams: the stage-5 run stays as it was.
+    odds_rng, burst_rng, impulse_rng, stretch_rng = (
+        np.random.default_rng([seed, k]) for k in (6, 7, 8, 9))
     n = int(round(duration_s * fs))
     t = np.arange(n) / fs
 
@@ -84,18 +119,27 @@ def synthesize_run(
     position = np.concatenate([[0.0], np.cumsum(speed[:-1]) / fs])
     scale = speed / MEAN_SPEED
 
+    gain = _stretch_gain(stretch_rng, position) if loud_stretches else 1.0
     data = np.empty((n, len(CHANNELS)), np.float32)
     for c, group in enumerate(CHANNEL_GROUPS):
         g = GROUPS[group]
         f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
-        phase = phi + 2 * np.pi * f * np.concatenate([[0.0], np.cumsum(scale[:-1]) / fs])
+        phase = phi + 2 * np.pi * f * _travel(scale, fs)
         clean = amp * scale * np.sin(phase)
-        data[:, c] = clean + _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
+        noise = _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
+        data[:, c] = clean + gain * noise
+    for c, group in enumerate(CHANNEL_GROUPS):
+        if stage >= 7:
+            data[:, c] += _bursts(burst_rng, GROUPS[group], t, position, scale, fs)
+        if stage >= 8:
+            data[:, c] += _impulses(impulse_rng, GROUPS[group], t, position, scale, fs)
 
     defects = []
     for at in _defect_times(rng, duration_s, defect_every_s):
         c = int(rng.integers(len(CHANNELS)))
         spike = bool(rng.random() < 0.5)
+        if stage >= 6:  # the same defect as at stage 5, on a channel drawn by its kind's odds
+            c = int(odds_rng.choice(len(CHANNELS), p=P_SPIKE if spike else P_LOCAL))
         duration = 0.01 if spike else float(rng.uniform(0.05, 0.2))
         size = rng.uniform(*(spike_offset if spike else deviation_offset))
         offset = float(size * rng.choice([-1.0, 1.0]))
@@ -107,6 +151,60 @@ def synthesize_run(
                         "channel": CHANNELS[c], "group": CHANNEL_GROUPS[c],
                         "kind": "spike" if spike else "deviation", "offset": offset})
     return Run(fs=fs, data=data, time=t, speed=speed, position=position, defects=defects)
+
+
+def _travel(scale: NDArray[np.float64], fs: float) -> NDArray[np.float64]:
+    """Seconds of travel at MEAN_SPEED covered by each sample: ∫ v/v̄ dt, 0 at the first sample."""
+    return np.concatenate([[0.0], np.cumsum(scale[:-1]) / fs])
+
+
+def _stretch_gain(rng: np.random.Generator, position: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per-sample noise gain of the track under the train: 1, or U[2, 4] over a rough section."""
+    gain = np.ones(len(position))
+    start = 0.0
+    while start <= position[-1]:
+        end = start + rng.uniform(*STRETCH_M)
+        if rng.random() < STRETCH_SHARE:
+            i0, i1 = np.searchsorted(position, [start, end])
+            gain[i0:i1] = rng.uniform(*STRETCH_GAIN)
+        start = end
+    return gain
+
+
+def _bursts(rng: np.random.Generator, g: GroupRanges, t: NDArray[np.float64],
+            position: NDArray[np.float64], scale: NDArray[np.float64],
+            fs: float) -> NDArray[np.float64]:
+    """One channel's HF bursts at rough spots of the track (module docstring)."""
+    out = np.zeros(len(t))
+    travel = _travel(scale, fs)
+    at = float(rng.exponential(BURST_SPACING_M))
+    while at < position[-1]:
+        length = rng.uniform(*BURST_S) * MEAN_SPEED
+        alpha, f_hf, psi = rng.uniform(*g.alpha_hf), rng.uniform(*g.f_hf), rng.uniform(0, 2 * np.pi)
+        i0, i1 = np.searchsorted(position, [at, at + length])
+        if i1 > i0:  # the frequency follows speed: a spatial wavelength of the track
+            out[i0:i1] = alpha * scale[i0:i1] * np.sin(2 * np.pi * f_hf * travel[i0:i1] + psi)
+        at += length + float(rng.exponential(BURST_SPACING_M))
+    return out
+
+
+def _impulses(rng: np.random.Generator, g: GroupRanges, t: NDArray[np.float64],
+              position: NDArray[np.float64], scale: NDArray[np.float64],
+              fs: float) -> NDArray[np.float64]:
+    """One channel's wheel-periodic impulses: one every T · 22.5 m of travel (module docstring)."""
+    out = np.zeros(len(t))
+    omega, period, beta = rng.uniform(*g.omega), rng.uniform(*g.imp_period), rng.uniform(*g.beta)
+    spacing = period * MEAN_SPEED
+    first = rng.uniform(0.0, spacing)
+    for x in np.arange(first, position[-1], spacing):
+        i0 = int(np.searchsorted(position, x))
+        if i0 >= len(t):
+            break
+        width = omega / scale[i0]  # seconds: the wheel passes faster at speed
+        i1 = min(len(t), i0 + int(np.ceil(3 * width * fs)) + 1)
+        tau = t[i0:i1] - t[i0]
+        out[i0:i1] += beta * scale[i0] * np.exp(-np.square(tau / width)) * (tau <= 3 * width)
+    return out
 
 
 def _noise_levels(rng: np.random.Generator, n: int, fs: float, sigma: tuple[float, float],

@@ -1,0 +1,96 @@
+"""Long synthetic runs: the later stages' nuisance in continuous time, tied to the track."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from railwatch.errors import RailwatchError
+from railwatch.synthetic.runs import (
+    BURST_S,
+    CHANNELS,
+    MEAN_SPEED,
+    STRETCH_GAIN,
+    synthesize_run,
+)
+from railwatch.synthetic.stages import P_LOCAL, P_SPIKE
+
+MINUTES = 3.0
+
+
+def run(**kw):  # type: ignore[no-untyped-def]
+    return synthesize_run(MINUTES * 60, seed=4, fs=1000.0, **kw)
+
+
+def test_each_stage_adds_its_component_to_the_same_run() -> None:
+    s5, s6, s7, s8 = (run(stage=k) for k in (5, 6, 7, 8))
+    np.testing.assert_allclose(s5.data, s6.data - _defects(s6) + _defects(s5), atol=1e-5)
+    # the same defects (time, kind, size), at stage 6 on channels drawn by their kind's odds
+    strip = [{k: v for k, v in d.items() if k not in ("channel", "group")} for d in s5.defects]
+    assert strip == [{k: v for k, v in d.items() if k not in ("channel", "group")}
+                     for d in s6.defects] == [{k: v for k, v in d.items()
+                                               if k not in ("channel", "group")}
+                                              for d in s8.defects]
+    bursts = (s7.data - s6.data).astype(np.float64)
+    share = (bursts != 0).mean()
+    spacing, length = 2.0 * MEAN_SPEED, np.mean(BURST_S) * MEAN_SPEED
+    assert 0.5 * length / spacing < share < 1.5 * length / spacing
+    impulses = (s8.data - s7.data).astype(np.float64)
+    assert (impulses >= -1e-5).all() and (impulses.max(axis=0) > 0.1).all()
+
+
+def _defects(r) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The defects of run ``r`` as an array shaped like its data."""
+    out = np.zeros_like(r.data)
+    for d in r.defects:
+        i0 = int(round(d["time_s"] * r.fs))
+        i1 = max(i0 + 1, int(round((d["time_s"] + d["duration_s"]) * r.fs)))
+        out[i0:i1, CHANNELS.index(d["channel"])] += d["offset"]
+    return out
+
+
+def test_impulses_repeat_at_a_fixed_distance_of_travel() -> None:
+    """Wheel-periodic: one impulse every L metres whatever the speed, so every L / v seconds."""
+    s7, s8 = run(stage=7), run(stage=8)
+    imp = (s8.data - s7.data)[:, 0].astype(np.float64)
+    starts = np.flatnonzero((imp[1:] > 1e-6) & (imp[:-1] <= 1e-6)) + 1
+    gaps = np.diff(s8.position[starts])
+    assert len(gaps) > 100
+    np.testing.assert_allclose(gaps, np.median(gaps), rtol=0.02)
+    assert np.ptp(np.diff(s8.time[starts])) > 0.02  # while the period in time changes
+
+
+def test_loud_stretches_raise_the_noise_of_whole_sections_of_track() -> None:
+    quiet, loud = run(), run(loud_stretches=True)
+    extra = (loud.data - quiet.data).astype(np.float64)  # (gain - 1) * noise
+    rough = np.abs(extra).max(axis=1) > 0
+    assert 0.15 < rough.mean() < 0.7  # 4 sections in 10 on average
+    # every channel at once, over stretches of at least 200 m
+    edges = np.flatnonzero(np.diff(rough.astype(int)))
+    lengths = np.diff(loud.position[edges])[::2] if rough[0] == 0 else np.diff(
+        loud.position[edges])[1::2]
+    assert (lengths[1:-1] >= 199.0).all()
+    sec = rough & (np.abs(extra).min(axis=1) > 0)
+    gain = 1 + np.median(np.abs(extra[sec]), axis=0) / np.median(
+        np.abs(_noise_only(quiet)[sec]), axis=0)
+    assert (gain > STRETCH_GAIN[0] * 0.8).all() and (gain < STRETCH_GAIN[1] * 1.2).all()
+
+
+def _noise_only(r) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """The white noise of a stage-5 run: the run minus its stage-5 run without noise is not
+    available, so take a high-pass estimate (the sinusoids are below 25 Hz at 1000 Hz)."""
+    x = r.data.astype(np.float64) - _defects(r)
+    return np.diff(x, axis=0, prepend=x[:1]) / np.sqrt(2.0)
+
+
+def test_stage_6_draws_defect_channels_by_kind() -> None:
+    r = synthesize_run(1200.0, seed=1, fs=200.0, defect_every_s=2.0, stage=6)
+    for kind, odds in (("spike", P_SPIKE), ("deviation", P_LOCAL)):
+        chans = [CHANNELS.index(d["channel"]) for d in r.defects if d["kind"] == kind]
+        share = np.bincount(chans, minlength=6) / len(chans)
+        np.testing.assert_allclose(share, odds, atol=0.06)
+
+
+def test_a_stage_a_run_cannot_carry_is_one_line() -> None:
+    with pytest.raises(RailwatchError, match="stage 5, 6, 7 or 8"):
+        synthesize_run(10.0, stage=4)
