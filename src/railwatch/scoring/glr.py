@@ -49,16 +49,22 @@ def families(min_box: int, max_box: int) -> tuple[Family, ...]:
     return (1,), tuple(range(min_box, max_box + 1))
 
 
-def box_sums(g: FloatArray, length: int) -> FloatArray:
+def cumulative(g: FloatArray) -> FloatArray:
+    """``g`` (N, T, C) summed along time from a leading zero: (N, T + 1, C), float64."""
+    n, _, c = g.shape
+    return np.concatenate([np.zeros((n, 1, c)), np.cumsum(g, axis=1, dtype=np.float64)], axis=1)
+
+
+def box_sums(g: FloatArray, length: int, cs: FloatArray | None = None) -> FloatArray:
     """Sums of ``g`` (N, T, C) over every box of ``length`` samples: (N, T − length + 1, C).
 
-    Entry ``s`` is ``g[:, s:s + length].sum(axis=1)``, from one cumulative sum (float64).
+    Entry ``s`` is ``g[:, s:s + length].sum(axis=1)``, a difference of one cumulative sum
+    (float64); pass ``cs = cumulative(g)`` to reuse it over several lengths.
 
     >>> box_sums(np.arange(5.0).reshape(1, 5, 1), 2)[0, :, 0]
     array([1., 3., 5., 7.])
     """
-    n, _, c = g.shape
-    cs = np.concatenate([np.zeros((n, 1, c)), np.cumsum(g, axis=1, dtype=np.float64)], axis=1)
+    cs = cumulative(g) if cs is None else cs
     return cs[:, length:] - cs[:, :-length]  # (N, T − L + 1, C)
 
 
@@ -119,14 +125,14 @@ def family_max(g: FloatArray, family: Family, norms: Sequence[FloatArray | float
     longer than the window are skipped (all ``-inf`` if none fits). Box sums are differences of
     one cumulative sum (float64).
     """
-    n, n_steps, c = g.shape
+    n_steps = g.shape[1]
     best = np.full(g.shape, -np.inf)
-    cs = np.concatenate([np.zeros((n, 1, c)), np.cumsum(g, axis=1, dtype=np.float64)], axis=1)
+    cs = cumulative(g)
     covered = np.empty(g.shape)
     for length, norm in zip(family, norms, strict=True):
         if length > n_steps:
             continue
-        z = np.abs(cs[:, length:] - cs[:, :-length]) / norm  # (N, T − L + 1, C)
+        z = np.abs(box_sums(g, length, cs)) / norm  # (N, T − L + 1, C)
         np.maximum(best, covering_max(z, length, out=covered), out=best)
     return best
 
