@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -60,6 +60,9 @@ bench-bounds: $(STAMP)  ## stage 1: a supervised bound per representation, next 
 
 bench-recordings: $(STAMP)  ## detection quality, real-time factor and onboard latency on recordings
 	$(BIN)/python benchmarks/recordings.py --work runs/recordings
+
+bench-recordings-nuisance: $(STAMP)  ## train on two runs, detect on a third: stage-5/8-like runs, loud stretches
+	$(BIN)/python benchmarks/recordings_nuisance.py --work runs/recordings-nuisance
 
 bench-reliability: $(STAMP)  ## the fault and fuzz tests, counted into docs/results/reliability.md
 	$(BIN)/python benchmarks/reliability.py

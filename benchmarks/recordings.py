@@ -56,7 +56,8 @@ def match(events: list[dict], truth: Path, tol: float = 0.25) -> tuple[float, in
         j = int(np.argmin(np.abs(centers - e["peak_s"])))
         if abs(centers[j] - e["peak_s"]) <= tol:
             right_channel.append(rows[j]["channel"] == e["channel"])
-    return float(np.mean(found)), int(sum(false)), float(np.mean(right_channel))
+    channel = float(np.mean(right_channel)) if right_channel else float("nan")
+    return float(np.mean(found)), int(sum(false)), channel
 
 
 def latency(fn, repeats: int = 300) -> tuple[float, float]:  # type: ignore[no-untyped-def]

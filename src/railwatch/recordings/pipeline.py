@@ -280,6 +280,11 @@ def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = ""
                    label="true defect" if i == 0 else None)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("anomaly score")
+    finite = np.asarray(det.trace.score, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if len(finite) and det.threshold > 0 and finite.max() > 30 * det.threshold:
+        ax.set_yscale("symlog", linthresh=1.0)  # scores over orders of magnitude
+        ax.set_ylim(bottom=0.0)
     ax.set_title(title or f"{len(det.events)} events in {det.duration_s / 60:.1f} min")
     t = np.asarray(det.trace.time, dtype=float)
     p = np.asarray(det.trace.position, dtype=float)
