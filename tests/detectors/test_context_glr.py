@@ -101,7 +101,7 @@ def test_changepoint_scale_is_the_residual_scan(fitted) -> None:  # type: ignore
 def test_bad_settings_are_one_line() -> None:
     X = generate(1, 20, seed=0).X
     for bad in ({"scale": "median"}, {"min_box": 9, "max_box": 4}, {"inject": 1.5},
-                {"inject_size": (2.0, 1.0)}):
+                {"inject_size": (2.0, 1.0)}, {"gap": 25}):
         with pytest.raises(RailwatchError):
             create("context-glr", {**SMALL, **bad}).fit(X)
 

@@ -21,20 +21,22 @@ Why this shape (``docs/context-glr.md`` has the measurements):
   through such shapes, while the bursts, impulses and speed changes, which are in every window,
   are to be followed. No label and no generator component is used; the training windows keep
   their own 10 % of real defects.
-- **Robust likelihood.** The network outputs the prediction ``μ`` and a log noise scale ``log s``
-  for every sample and channel (the scale is blind too), trained by the Student-t negative
-  log-likelihood with ``dof`` degrees of freedom: a defect left in a training window costs the
-  logarithm of its size, not its square, so the real 10 % contamination barely pulls the fit.
+- **Robust likelihood.** The network outputs the prediction ``μ`` and two log noise scales for
+  every sample and channel: ``s`` blind to ``t ± gap`` like ``μ`` (the spike test's) and ``s_g``
+  blind to ``t ± guard`` (the box test's: a box must not raise the scale that judges it),
+  both trained by the Student-t negative log-likelihood with ``dof`` degrees of freedom: a
+  defect left in a training window costs the logarithm of its size, not its square, so the real
+  10 % contamination barely pulls the fit.
 - **Level kept.** Inputs are standardised per channel by training statistics, never per window:
   a window that is louder as a whole stays louder.
 
 Score: ``g = (x − μ) / (s · k_c)`` with ``k_c`` the per-channel robust spread of the standardised
 residual on the validation split (so that ``g`` is N(0, 1) where the model is right), minus its
-window median; :class:`railwatch.scoring.residual.ResidualGLR` scans ``g`` for a one-sample spike
-and boxes of ``min_box .. max_box`` samples and gives calibrated ``−log10`` p-values per sample
-and channel. ``scale="changepoint"`` ignores the learned scale and estimates it from the residual
-instead (at most one change of noise level per window and channel). Point = max over channels,
-instance = max over time.
+window median, and ``g_box`` the same with ``s_g``; :class:`railwatch.scoring.residual.ResidualGLR`
+scans ``g`` for a one-sample spike and ``g_box`` for boxes of ``min_box .. max_box`` samples and
+gives calibrated ``−log10`` p-values per sample and channel. ``scale="changepoint"`` ignores the
+learned scales and estimates one from the residual instead (at most one change of noise level
+per window and channel). Point = max over channels, instance = max over time.
 """
 
 from __future__ import annotations
