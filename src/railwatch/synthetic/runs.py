@@ -120,17 +120,18 @@ def synthesize_run(
     scale = speed / MEAN_SPEED
 
     gain = _stretch_gain(stretch_rng, position) if loud_stretches else 1.0
+    travel = _travel(scale, fs)
     data = np.empty((n, len(CHANNELS)), np.float32)
     for c, group in enumerate(CHANNEL_GROUPS):
         g = GROUPS[group]
         f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
-        phase = phi + 2 * np.pi * f * _travel(scale, fs)
+        phase = phi + 2 * np.pi * f * travel
         clean = amp * scale * np.sin(phase)
         noise = _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
         data[:, c] = clean + gain * noise
     for c, group in enumerate(CHANNEL_GROUPS):
         if stage >= 7:
-            data[:, c] += _bursts(burst_rng, GROUPS[group], t, position, scale, fs)
+            data[:, c] += _bursts(burst_rng, GROUPS[group], position, scale, travel)
         if stage >= 8:
             data[:, c] += _impulses(impulse_rng, GROUPS[group], t, position, scale, fs)
 
@@ -171,12 +172,11 @@ def _stretch_gain(rng: np.random.Generator, position: NDArray[np.float64]) -> ND
     return gain
 
 
-def _bursts(rng: np.random.Generator, g: GroupRanges, t: NDArray[np.float64],
-            position: NDArray[np.float64], scale: NDArray[np.float64],
-            fs: float) -> NDArray[np.float64]:
-    """One channel's HF bursts at rough spots of the track (module docstring)."""
-    out = np.zeros(len(t))
-    travel = _travel(scale, fs)
+def _bursts(rng: np.random.Generator, g: GroupRanges, position: NDArray[np.float64],
+            scale: NDArray[np.float64], travel: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One channel's HF bursts at rough spots of the track (module docstring); ``travel`` is
+    :func:`_travel` of the run."""
+    out = np.zeros(len(position))
     at = float(rng.exponential(BURST_SPACING_M))
     while at < position[-1]:
         length = rng.uniform(*BURST_S) * MEAN_SPEED
