@@ -51,7 +51,7 @@ from torch.nn import functional as F
 from railwatch.bench.outputs import write_markdown
 from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
-from railwatch.detectors.base import Detector
+from railwatch.detectors.api import Detector
 from railwatch.detectors.mscred import signature_matrices
 from railwatch.synthetic import generate
 

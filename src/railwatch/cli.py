@@ -328,6 +328,7 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     Example:
       railwatch detect --model model/ --recording run.parquet --out events.csv --plot run.png
     """
+    from railwatch.evaluation.figures import plot_detection
     from railwatch.recordings import pipeline
     from railwatch.recordings.layout import load_layout
     from railwatch.recordings.readers import Recording
@@ -351,7 +352,7 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     if plot is not None:
         title = (f"{recording.name}: {len(result.events)} events in "
                  f"{rec.duration_s / 60:.1f} min")
-        pipeline.plot_detection(result, plot, title=title, truth=marks)
+        plot_detection(result, plot, title=title, truth=marks)
     info(f"{len(result.events)} events in {rec.duration_s / 60:.1f} min of recording, scanned in "
          f"{elapsed:.1f} s ({rec.duration_s / max(elapsed, 1e-9):.0f}x real time); wrote {out}"
          + (f" and {plot}" if plot else ""))
@@ -475,7 +476,7 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
 def score(model: Path, data: Path, out: Path) -> None:
     """Score windows with a trained detector (higher = more anomalous)."""
     from railwatch.detectors import load_detector
-    from railwatch.detectors.base import localize_scores
+    from railwatch.scoring.reduce import localize
     from railwatch.synthetic.datasets import atomic_savez
     from railwatch.windows import load_windows
 
@@ -484,7 +485,7 @@ def score(model: Path, data: Path, out: Path) -> None:
     windows = load_windows(data)
     started = time.perf_counter()
     s = detector.score(windows.X, windows.components)
-    loc = localize_scores(s, detector.config.fs)
+    loc = localize(s.point, s.channel, detector.config.fs)
     atomic_savez(out, {
         "instance": s.instance, "point": s.point, "channel": s.channel,
         "threshold": np.array(detector.threshold_), "time_index": loc.time_index,
@@ -510,7 +511,7 @@ def evaluate(data: Path, scores_path: Path, out: Path | None) -> None:
     auc_paper7    the paper's 7-threshold AUC            ap_instance  average precision
     f1_fitted     F1 at the threshold fitted in training  loc_time / loc_channel  localisation
     """
-    from railwatch.detectors.base import Scores
+    from railwatch.detectors.api import Scores
     from railwatch.evaluation.metrics import evaluate_scores
     from railwatch.windows import load_windows
 

@@ -11,7 +11,7 @@ from conftest import tiny_config as tiny
 from railwatch.cli import main
 from railwatch.deploy.onnx import TOLERANCE, export_onnx, load_onnx
 from railwatch.detectors import create, names
-from railwatch.detectors.base import TorchDetector
+from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError
 from railwatch.synthetic import generate
 

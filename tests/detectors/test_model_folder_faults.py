@@ -25,7 +25,7 @@ import torch
 from conftest import TINY
 from railwatch.cli import main
 from railwatch.deploy.onnx import CHECKSUM_KEY, META_KEY, load_onnx, read_metadata
-from railwatch.detectors.base import load_detector
+from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.pipeline import load_recording_model
 

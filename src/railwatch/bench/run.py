@@ -27,7 +27,7 @@ from railwatch.bench.presets import Preset
 from railwatch.synthetic import SPEC_VERSION, SyntheticSet, generate
 
 if TYPE_CHECKING:  # torch is imported only when a cell runs
-    from railwatch.detectors.base import Detector
+    from railwatch.detectors.api import Detector
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +128,7 @@ def fit_or_reuse(
     Returns the detector, the fit seconds (the shared training's plus the refit) and the
     registry name of the cell that trained the network.
     """
-    from railwatch.detectors.base import load_detector
+    from railwatch.detectors.registry import load_detector
 
     folder = cache / "models" / training_key(det, cell, preset)
     info_path = folder / "fit.json"
@@ -466,7 +466,7 @@ def _retime(store: ResultStore, preset: Preset,
     import datetime
     from dataclasses import replace
 
-    from railwatch.detectors.base import load_detector
+    from railwatch.detectors.registry import load_detector
     from railwatch.evaluation.metrics import score_seconds
 
     grid = [c for c in cells(preset) if store.done(preset, c)]

@@ -29,14 +29,9 @@ import torch
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
-from railwatch.detectors.base import (
-    Detector,
-    TorchDetector,
-    config_from_dict,
-    load_detector,
-    positive_count,
-    verify_restored,
-)
+from railwatch.detectors.api import Detector, config_from_dict, positive_count, verify_restored
+from railwatch.detectors.registry import load_detector
+from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError, naming, one_line
 
 META_KEY = "railwatch"

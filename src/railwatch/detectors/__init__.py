@@ -1,6 +1,9 @@
-"""Unsupervised detectors behind one API (see :mod:`railwatch.detectors.base`)."""
+"""Unsupervised detectors behind one API (:mod:`railwatch.detectors.api`), by name
+(:mod:`railwatch.detectors.registry`); deep ones share :mod:`railwatch.detectors.training`, and
+a fitted one is a model folder (:mod:`railwatch.detectors.model_folder`)."""
 
-from railwatch.detectors.base import Detector, Localization, Scores, load_detector
-from railwatch.detectors.registry import REGISTRY, create, names
+from railwatch.detectors.api import Detector, Scores
+from railwatch.detectors.registry import REGISTRY, create, load_detector, names
+from railwatch.scoring.reduce import Localization
 
 __all__ = ["REGISTRY", "Detector", "Localization", "Scores", "create", "load_detector", "names"]

@@ -79,16 +79,10 @@ from numpy.typing import NDArray
 from torch import nn
 from torch.nn import functional as F
 
-from railwatch.detectors.base import (
-    GLR_SCORING,
-    DetectorConfig,
-    FloatArray,
-    Scores,
-    TorchDetector,
-    TrainConfig,
-    reduce_instance_max,
-)
+from railwatch.detectors.api import GLR_SCORING, DetectorConfig, FloatArray, Scores, TrainConfig
+from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError
+from railwatch.scoring.reduce import reduce_instance_max
 
 log = logging.getLogger(__name__)
 

@@ -50,15 +50,10 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
-from railwatch.detectors.base import (
-    DetectorConfig,
-    Scores,
-    TorchDetector,
-    TrainConfig,
-    reduce_instance_max,
-    reduce_point_max,
-)
+from railwatch.detectors.api import DetectorConfig, Scores, TrainConfig
+from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError
+from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
 from railwatch.scoring.residual import MAD_NORMAL, ResidualGLR
 
 SCALES = ("learned", "changepoint")

@@ -37,14 +37,9 @@ import torch
 from numpy.typing import NDArray
 from torch import nn
 
-from railwatch.detectors.base import (
-    GLR_SCORING,
-    DetectorConfig,
-    Scores,
-    TorchDetector,
-    TrainConfig,
-    reduce_instance_max,
-)
+from railwatch.detectors.api import GLR_SCORING, DetectorConfig, Scores, TrainConfig
+from railwatch.detectors.training import TorchDetector
+from railwatch.scoring.reduce import reduce_instance_max
 
 
 @dataclass(frozen=True)

@@ -40,17 +40,10 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from railwatch.detectors.base import (
-    Detector,
-    DetectorConfig,
-    FloatArray,
-    Scores,
-    reduce_instance_max,
-    reduce_point_max,
-    standardize,
-)
+from railwatch.detectors.api import Detector, DetectorConfig, FloatArray, Scores, standardize
 from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
+from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
 from railwatch.scoring.residual import masked_median
 
 F64 = NDArray[np.float64]

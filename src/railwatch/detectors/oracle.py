@@ -32,16 +32,10 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.detectors.base import (
-    Detector,
-    DetectorConfig,
-    FloatArray,
-    Scores,
-    reduce_instance_max,
-    reduce_point_max,
-)
+from railwatch.detectors.api import Detector, DetectorConfig, FloatArray, Scores
 from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
+from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
 
 
 @dataclass(frozen=True)

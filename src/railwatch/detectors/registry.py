@@ -1,18 +1,24 @@
-"""The detectors by name: the names ``railwatch train --detector`` takes.
+"""The detectors by name: the names ``railwatch train --detector`` takes, and the loading of a
+saved model folder by the name in its header.
 
 An entry is a class plus config overrides, so that variants of one class (the attention model's
-scoring modes) are rows of their own without a class each. Classes are imported on first use.
+scoring modes) are rows of their own without a class each. Classes are imported on first use, so
+that naming, creating or listing detectors does not import torch until a deep one is used.
+Adding a detector: one file in this folder, one entry here (``docs/architecture.md``).
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
-from railwatch.detectors.base import GLR_SCORING, Detector, config_from_dict
-from railwatch.errors import RailwatchError
+from railwatch.detectors import model_folder
+from railwatch.detectors.api import GLR_SCORING, Detector, config_from_dict
+from railwatch.errors import RailwatchError, naming, one_line
 from railwatch.scoring import GLR_SUFFIX
 
 
@@ -89,3 +95,28 @@ def create(name: str, overrides: Mapping[str, Any] | None = None) -> Detector:
     det = cls(config)
     det.registry_name = name
     return det
+
+
+def load_detector(path: str | os.PathLike[str]) -> Detector:
+    """Load a detector saved with :meth:`Detector.save`; any detector class, by its header.
+
+    Every way a model folder can be damaged (a file missing, truncated, replaced or edited; a
+    header naming another detector, a newer format or settings this version does not know) is
+    a one-line :class:`RailwatchError` naming the folder; the loaded detector has scored a
+    window, so that it does not fail later, in the middle of a recording.
+    """
+    path = Path(path)
+    model_folder.check_folder(path)
+    try:
+        header = model_folder.read_header(path)
+        cls = class_for(header["detector"])
+        det = cls._from_saved(header, path)
+        det.registry_name = header["detector"]
+        return det
+    except RailwatchError as e:
+        raise naming(str(path), e) from None
+    except Exception as e:  # noqa: BLE001 - any failure to read a saved model is the same to the user
+        raise RailwatchError(
+            f"{path} is not a readable railwatch model directory ({type(e).__name__}: "
+            f"{one_line(e)[:200]})"
+        ) from None

@@ -1,10 +1,12 @@
-"""Figures. Drawn on matplotlib ``Figure`` objects (no pyplot state, no display needed)."""
+"""Figures: the benchmark's and a detection's. Drawn on matplotlib ``Figure`` objects (no pyplot
+state, no display needed)."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -16,6 +18,9 @@ from railwatch.atomic import atomic_path
 from railwatch.scoring import GLR_SUFFIX
 from railwatch.synthetic import STAGES, SyntheticSet, generate
 from railwatch.synthetic.anomalies import LOCAL, SPIKE
+
+if TYPE_CHECKING:
+    from railwatch.recordings.pipeline import Detection
 
 KIND_NAMES = {SPIKE: "spike", LOCAL: "local deviation"}
 
@@ -240,3 +245,42 @@ def _palette(n: int) -> list[Any]:
 
     cmap = colormaps["tab10"]
     return [cmap(i % 10) for i in range(n)]
+
+
+def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = "",
+                   truth: Sequence[float] | None = None) -> Path:
+    """The score trace along time with the threshold, events shaded, optional true defects."""
+    fig = Figure(figsize=(12, 3.6), layout="constrained")
+    ax = fig.subplots()
+    ax.plot(det.trace.time, det.trace.score, lw=0.6, color="0.3", label="score (max per 0.1 s)")
+    ax.axhline(det.threshold, color="tab:red", ls="--", lw=1, label="threshold")
+    for i, e in enumerate(det.events):
+        ax.axvspan(e.start_s, e.end_s, color="tab:red", alpha=0.35, lw=0,
+                   label="event" if i == 0 else None)
+        ax.annotate(e.channel, (e.peak_s, e.score), fontsize=6, rotation=90, va="bottom",
+                    ha="center", color="tab:red")
+    for i, at in enumerate(truth or []):
+        ax.axvline(at, color="tab:green", lw=0.8, alpha=0.7, ymax=0.08,
+                   label="true defect" if i == 0 else None)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("anomaly score")
+    finite = np.asarray(det.trace.score, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if len(finite) and det.threshold > 0 and finite.max() > 30 * det.threshold:
+        ax.set_yscale("symlog", linthresh=1.0)  # scores over orders of magnitude
+        ax.set_ylim(bottom=0.0)
+    ax.set_title(title or f"{len(det.events)} events in {det.duration_s / 60:.1f} min")
+    t = np.asarray(det.trace.time, dtype=float)
+    p = np.asarray(det.trace.position, dtype=float)
+    if len(t) > 1 and np.isfinite(p).all() and (np.diff(p) > 0).all():
+        def to_position(x: Any) -> Any:
+            return np.interp(x, t, p)
+
+        def to_time(x: Any) -> Any:
+            return np.interp(x, p, t)
+
+        secax = ax.secondary_xaxis("top", functions=(to_position, to_time))
+        secax.set_xlabel("track position (m)")
+    ax.legend(loc="upper right", fontsize=7, ncols=4)
+    save_figure(fig, Path(path))
+    return Path(path)

@@ -17,6 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from sklearn.metrics import average_precision_score, f1_score, roc_auc_score
 
+from railwatch.scoring.reduce import localize
+
 log = logging.getLogger(__name__)
 
 #: The paper's Table I footnote: thresholds at the top {0.5, 1, 1.5, 2, 10, 20, 30} % of scores.
@@ -154,9 +156,7 @@ def evaluate_scores(
     ``scores`` is a :class:`railwatch.detectors.Scores` (or anything with ``instance``, ``point``
     and ``channel``); ``threshold`` the detector's fitted ``threshold_``.
     """
-    from railwatch.detectors.base import localize_scores
-
-    loc = localize_scores(scores, fs)
+    loc = localize(scores.point, scores.channel, fs)
     return {
         "auc_instance": auc_instance(y, scores.instance),
         "auc_point": auc_point(mask, scores.point),

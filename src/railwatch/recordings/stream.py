@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.detectors.base import Detector
+from railwatch.detectors.api import Detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, gather_windows
