@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -72,6 +72,9 @@ bench-residual-glr: $(STAMP)  ## stages 1-8: GLR scoring of the true and of cnn-
 
 bench-context-glr: $(STAMP)  ## stages 1,4,5,7,8: context-glr's prediction error and its supervised bound
 	$(BIN)/python benchmarks/context_glr.py
+
+bench-context-glr-swap: $(STAMP)  ## stages 5, 7: context-glr's prediction and noise scale swapped for the truth (~3 min)
+	$(BIN)/python benchmarks/context_glr_swap.py 5,7
 
 bench-context-glr-speed: $(STAMP)  ## context-glr's width against AUC, fit, scoring and ONNX time (~15 min)
 	$(BIN)/python benchmarks/context_glr_speed.py
