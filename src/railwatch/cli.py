@@ -171,7 +171,9 @@ def model_dir(path: Path) -> Path:
     """Fail early if ``path`` cannot become a model directory."""
     if path.exists() and not path.is_dir():
         raise RailwatchError(f"--out {path} is a file: give a folder name for the model")
-    if path.is_dir() and any(path.iterdir()) and not (path / "detector.json").is_file():
+    from railwatch.detectors.model_folder import is_model_folder
+
+    if path.is_dir() and any(path.iterdir()) and not is_model_folder(path):
         raise RailwatchError(f"--out {path} is a non-empty folder that is not a railwatch model: "
                              "choose a new folder")
     parent = path.parent if str(path.parent) else Path(".")

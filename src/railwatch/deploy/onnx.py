@@ -29,6 +29,7 @@ import torch
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector, config_from_dict, positive_count, verify_restored
 from railwatch.detectors.registry import load_detector
 from railwatch.detectors.training import TorchDetector
@@ -103,11 +104,11 @@ def _metadata(det: Detector, keys: list[str], folder: Path | None) -> dict[str, 
     stats = io.BytesIO()
     np.savez(stats, **det.stats_)  # type: ignore[arg-type]
     recording = None
-    if folder is not None and (folder / "recording.json").is_file():
+    if folder is not None and (folder / model_folder.RECORDING).is_file():
         try:
-            recording = json.loads((folder / "recording.json").read_text())
+            recording = json.loads((folder / model_folder.RECORDING).read_text())
         except (OSError, ValueError) as e:
-            raise RailwatchError(f"{folder / 'recording.json'} is damaged ({one_line(e)}): "
+            raise RailwatchError(f"{folder / model_folder.RECORDING} is damaged ({one_line(e)}): "
                                  "train the model again") from None
     return {
         "detector": det.registry_name or type(det).__name__,

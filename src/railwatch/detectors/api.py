@@ -287,7 +287,6 @@ class Detector(ABC):
         return None
 
     # -- persistence ---------------------------------------------------------------------
-    # -- persistence ---------------------------------------------------------------------
     def save(self, path: str | os.PathLike[str],
              extra_files: Mapping[str, str] | None = None) -> Path:
         """Write the fitted detector into the model folder ``path``, replaced only when complete

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError, one_line
@@ -30,7 +31,7 @@ from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Recording
 from railwatch.recordings.stream import Event, StreamingDetector
 
-RECORDING_FILE = "recording.json"
+RECORDING_FILE = model_folder.RECORDING
 EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "threshold",
                 "position_m")
 
