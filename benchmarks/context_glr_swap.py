@@ -46,7 +46,8 @@ def _rms_ratio(err: NDArray[np.float64], noise: NDArray[np.float64], k: int) -> 
     return float(np.sqrt((means(err) ** 2).mean() / (means(noise) ** 2).mean()))
 
 
-def stage_rows(stage: int) -> list[str]:
+def stage_rows(stage: int) -> tuple[list[str], str]:
+    """The stage's table rows, and its row of prediction errors."""
     train, test = generate(stage, N_TRAIN, 0), generate(stage, N_TEST, 1, components=True)
     started = time.perf_counter()
     det = create("context-glr", CONFIG).fit(train.X)
@@ -57,7 +58,6 @@ def stage_rows(stage: int) -> list[str]:
     nuisance = (test.nuisance - mean) / std
     noise_std = test.noise_std / std
     res = s.extras["residual"].astype(np.float64)
-    mu = x - res
     near = s.extras["scale"] * det.stats_["z_spread_scale"]
     guard = s.extras["guard_scale"] * det.stats_["z_spread_guard_scale"]
     scan = ResidualGLR()
@@ -81,19 +81,19 @@ def stage_rows(stage: int) -> list[str]:
                     f"{roc_auc_score(y[kind != 2], spike[kind != 2]):.3f} | "
                     f"{roc_auc_score(y[kind != 1], box[kind != 1]):.3f} |")
         print(rows[-1], flush=True)
-    err, noise = mu - nuisance, true_res
-    errors = (f"| {stage} | {_rms_ratio(err, noise, 1):.2f} | {_rms_ratio(err, noise, 10):.2f} "
-              f"| {fit_s:.0f} |")
-    return [*rows, "", errors]
+    err = true_res - res  # the prediction minus the true nuisance
+    errors = (f"| {stage} | {_rms_ratio(err, true_res, 1):.2f} | "
+              f"{_rms_ratio(err, true_res, 10):.2f} | {fit_s:.0f} |")
+    return rows, errors
 
 
 def main() -> None:
     stages = [int(v) for v in sys.argv[1].split(",")] if len(sys.argv) > 1 else [5]
     table, errors = [], []
     for stage in stages:
-        rows = stage_rows(stage)
-        table += rows[:-2]
-        errors.append(rows[-1])
+        rows, error_row = stage_rows(stage)
+        table += rows
+        errors.append(error_row)
     lines = [
         "# context-glr: prediction or noise scale? (each swapped for the truth)",
         "",

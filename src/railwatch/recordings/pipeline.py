@@ -31,7 +31,6 @@ from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Recording
 from railwatch.recordings.stream import Event, StreamingDetector
 
-RECORDING_FILE = model_folder.RECORDING
 EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "threshold",
                 "position_m")
 
@@ -93,7 +92,7 @@ def recording_info(layout: Layout, prep: Preparation, threshold: float) -> dict[
     """The extra file a recordings model carries (``Detector.save(extra_files=...)``)."""
     info = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
             "threshold": threshold, "threshold_rule": f"null_threshold(tail={NULL_TAIL})"}
-    return {RECORDING_FILE: json.dumps(info, indent=2)}
+    return {model_folder.RECORDING: json.dumps(info, indent=2)}
 
 
 @dataclass
@@ -109,7 +108,7 @@ class RecordingModel:
 def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
     """A model folder written by ``railwatch train --recordings``, or its ``.onnx`` export
     (the network then runs in onnxruntime)."""
-    path = Path(model) / RECORDING_FILE
+    path = Path(model) / model_folder.RECORDING
     if Path(model).suffix.lower() == ".onnx":
         from railwatch.deploy.onnx import load_onnx, read_metadata
 
@@ -124,8 +123,8 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
             raise RailwatchError(f"{path} is damaged ({e}): train the model again") from None
     if info is None:
         raise RailwatchError(
-            f"{model} was trained on windows, not recordings (no {RECORDING_FILE}): train it with "
-            "'railwatch train --recordings FILE... --layout LAYOUT'")
+            f"{model} was trained on windows, not recordings (no {model_folder.RECORDING}): "
+            "train it with 'railwatch train --recordings FILE... --layout LAYOUT'")
     try:
         layout = Layout.from_dict(info["layout"], source)
         prep = _preparation(info["preparation"])
