@@ -28,12 +28,13 @@ import numpy as np
 import torch
 from sklearn.metrics import roc_auc_score
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
 from railwatch.detectors.context_glr import BlindSpotNet, ContextGLR, inject_defects
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 from railwatch.scoring.residual import ResidualGLR
-from railwatch.synthetic import SyntheticSet, generate
+from railwatch.synthetic import generate
+from railwatch.windows import WindowSet
 
 N_TRAIN, N_TEST = 2000, 1000
 
@@ -47,7 +48,7 @@ def error_ratio(det: ContextGLR, X: np.ndarray, nuisance: np.ndarray, noise: np.
     return float(np.sqrt(np.mean((mu - truth) ** 2)) / np.sqrt(np.mean((noise / std) ** 2)))
 
 
-def supervised_bound(train: SyntheticSet, test: SyntheticSet) -> tuple[float, float]:
+def supervised_bound(train: WindowSet, test: WindowSet) -> tuple[float, float]:
     """AUC (change-point scale) and error ratio of the network fitted to the true nuisance."""
     cfg = create("context-glr").config
     mean = train.X.mean(axis=(0, 1), dtype=np.float64).astype(np.float32)

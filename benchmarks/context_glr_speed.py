@@ -32,12 +32,12 @@ import torch
 from matplotlib.figure import Figure
 from sklearn.metrics import roc_auc_score
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.deploy.onnx import export_onnx, load_onnx
 from railwatch.detectors import create
-from railwatch.evaluation.figures import save_figure
 from railwatch.evaluation.metrics import timed, timed_scores
+from railwatch.machine import cpu_name
+from railwatch.report.figures import save_figure
+from railwatch.report.pages import write_markdown
 from railwatch.synthetic import generate
 
 STAGE, N_TRAIN, N_TEST, SEEDS = 7, 3000, 3000, (2468, 2469)

@@ -24,9 +24,9 @@ import torch
 from numpy.typing import NDArray
 from sklearn.metrics import roc_auc_score
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 from railwatch.scoring.glr import box_sums, cumulative
 from railwatch.scoring.residual import ResidualGLR
 from railwatch.synthetic import generate

@@ -19,10 +19,10 @@ import time
 
 import torch
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.detectors import create, names
 from railwatch.evaluation.metrics import auc_instance, score_seconds
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 from railwatch.synthetic import generate
 
 #: Equal-size comparison of the attention model and the Anomaly Transformer (paper's Table II

@@ -11,7 +11,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from railwatch.bench.run import cpu_name
+from railwatch.machine import cpu_name
 
 
 def main() -> None:

@@ -140,8 +140,8 @@ def main() -> None:
     it = iter(blocks)
     lat_stream = latency(lambda: stream.push(next(it)), repeats=150)
 
-    from railwatch.bench.outputs import write_markdown
-    from railwatch.bench.run import cpu_name
+    from railwatch.machine import cpu_name
+    from railwatch.report.pages import write_markdown
 
     lines = [
         "# Recordings: detection, real-time factor and onboard latency", "",

@@ -143,8 +143,8 @@ def main() -> None:
               "--out", str(work / "worst.csv"), "--plot", str(figure),
               "--truth", str(worst["test"].with_suffix(".defects.csv")))
 
-    from railwatch.bench.outputs import write_markdown
-    from railwatch.bench.run import cpu_name
+    from railwatch.machine import cpu_name
+    from railwatch.report.pages import write_markdown
 
     sets = f" with `--set {' --set '.join(args.set)}`" if args.set else ""
     lines = [

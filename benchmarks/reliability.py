@@ -18,8 +18,8 @@ import xml.etree.ElementTree as ET
 from collections import defaultdict
 from pathlib import Path
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 
 ROOT = Path(__file__).parents[1]
 FILES = {

@@ -48,11 +48,11 @@ from sklearn.metrics import roc_auc_score
 from torch import nn
 from torch.nn import functional as F
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
 from railwatch.detectors.api import Detector
 from railwatch.detectors.mscred import signature_matrices
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 from railwatch.synthetic import generate
 
 Features = Callable[[np.ndarray], np.ndarray]  # windows (N, T, 1) -> (N, steps, features)

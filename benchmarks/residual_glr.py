@@ -24,9 +24,9 @@ import numpy as np
 import torch
 from sklearn.metrics import roc_auc_score
 
-from railwatch.bench.outputs import write_markdown
-from railwatch.bench.run import cpu_name
 from railwatch.detectors import create
+from railwatch.machine import cpu_name
+from railwatch.report.pages import write_markdown
 from railwatch.scoring.glr import families, scan
 from railwatch.scoring.residual import ResidualGLR, null_counts
 from railwatch.synthetic import generate

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import pytest
 
-from conftest import TINY, tiny_config
 from railwatch.cli import main
 from railwatch.detectors import create, load_detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.pipeline import read_events
 from railwatch.windows import load_windows
+from support import TINY, tiny_config
 
 LIMIT_S = 60.0  # longest wait for anything a subprocess should do
 RAILWATCH = [sys.executable, "-m", "railwatch.cli"]

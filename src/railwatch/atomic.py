@@ -18,6 +18,7 @@ import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 
 def sha256_file(path: str | os.PathLike[str]) -> str:
@@ -74,6 +75,15 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
 #: The names :func:`atomic_path` gives its temporary files: ``.<stem>.<8 of mkstemp's>.<suffix>``.
 _TEMPORARY = re.compile(r"^\..+\.[a-z0-9_]{8}(\.[A-Za-z0-9]+)?$")
+
+
+def atomic_savez(path: str | os.PathLike[str], arrays: dict[str, Any]) -> Path:
+    """``np.savez`` written atomically: complete at ``path``, or not there at all."""
+    import numpy as np
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    return Path(path)
 
 
 def remove_stale_temporaries(folder: str | os.PathLike[str]) -> int:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from railwatch.bench.run import ResultStore
+from railwatch.bench.store import ResultStore
 from railwatch.cli import main
 
 ARGS = ["bench", "--preset", "smoke", "--stages", "1,3", "--detectors", "matched-filter,cnn-ae"]
@@ -33,7 +33,9 @@ VARYING = {"fit_s", "score_s", "cell_s", "environment", "arrays_sha256"}
 KILLER = r"""
 import os, signal, sys
 import numpy as np
-from railwatch.bench import outputs, run
+from railwatch.atomic import atomic_path
+from railwatch.bench import store
+from railwatch.report import benchmark as report
 
 point, nth = sys.argv[1], int(sys.argv[2])
 calls = [0]
@@ -51,22 +53,22 @@ if point == "arrays":  # half an .npz written into the cell's temporary file
         return real_savez(fh, **arrays)
     np.savez = savez
 elif point == "record":  # half a record written into its temporary file
-    real_record = run.ResultStore.write_record
+    real_record = store.ResultStore.write_record
     def write_record(self, cell, record):
         calls[0] += 1
         if calls[0] == nth:
-            with run.atomic_path(self.dir / f"{cell.key}.json") as tmp:
+            with atomic_path(self.dir / f"{cell.key}.json") as tmp:
                 tmp.write_text('{"stage": 1, "detec'); die()
         return real_record(self, cell, record)
-    run.ResultStore.write_record = write_record
+    store.ResultStore.write_record = write_record
 elif point == "report":  # half of results.json written
-    real_text = outputs._write_text
+    real_text = report.write_text
     def write_text(path, text):
         if path.name == "results.json":
-            with outputs.atomic_path(path) as tmp:
+            with atomic_path(path) as tmp:
                 tmp.write_text(text[: len(text) // 2]); die()
         return real_text(path, text)
-    outputs._write_text = write_text
+    report.write_text = write_text
 from railwatch.cli import main
 sys.exit(main(sys.argv[3:]))
 """
@@ -188,7 +190,7 @@ def test_one_run_at_a_time_per_folder(tmp_path, capsys) -> None:  # type: ignore
     out = tmp_path / "run"
     holder = subprocess.Popen(
         [sys.executable, "-c", "import sys, time; from pathlib import Path; "
-         "from railwatch.bench.run import ResultStore\n"
+         "from railwatch.bench.store import ResultStore\n"
          "with ResultStore(Path(sys.argv[1])).lock():\n print('held', flush=True); "
          "time.sleep(600)", str(out)], stdout=subprocess.PIPE)
     try:

@@ -7,13 +7,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import tiny_config as tiny
 from railwatch.cli import main
 from railwatch.deploy.onnx import TOLERANCE, export_onnx, load_onnx
 from railwatch.detectors import create, names
 from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError
 from railwatch.synthetic import generate
+from support import tiny_config as tiny
 
 DEEP = [n for n in names() if issubclass(type(create(n)), TorchDetector)]
 

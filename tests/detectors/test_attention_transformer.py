@@ -7,11 +7,11 @@ import pytest
 import torch
 from sklearn.metrics import roc_auc_score
 
-from conftest import rough_patches
 from railwatch.detectors import create
 from railwatch.detectors.attention_transformer import AFTConfig, AttentionFocusedTransformer
 from railwatch.errors import RailwatchError
 from railwatch.synthetic import generate
+from support import rough_patches
 
 TINY = {"epochs": 3, "n_layers": 1, "progress": False}
 

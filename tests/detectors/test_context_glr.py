@@ -7,12 +7,12 @@ import pytest
 import torch
 from sklearn.metrics import roc_auc_score
 
-from conftest import rough_patches
 from railwatch.detectors import create
 from railwatch.detectors.context_glr import BlindSpotNet, inject_defects
 from railwatch.errors import RailwatchError
 from railwatch.scoring.residual import ResidualGLR
 from railwatch.synthetic import generate
+from support import rough_patches
 
 SMALL = {"epochs": 4, "width": 16, "dilations": (1, 2, 4, 8), "null_windows": 200,
          "progress": False}

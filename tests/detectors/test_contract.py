@@ -7,19 +7,20 @@ import json
 import numpy as np
 import pytest
 
-from conftest import TINY
-from conftest import tiny_config as tiny
 from railwatch.detectors import create, load_detector, names
 from railwatch.errors import RailwatchError
-from railwatch.synthetic import SyntheticSet, generate
+from railwatch.synthetic import generate
+from railwatch.windows import WindowSet
+from support import TINY
+from support import tiny_config as tiny
 
 
-def context(d: SyntheticSet) -> dict[str, np.ndarray]:
+def context(d: WindowSet) -> dict[str, np.ndarray]:
     return {"nuisance": d.nuisance, "noise_std": d.noise_std}
 
 
 @pytest.fixture(scope="module")
-def data() -> tuple[SyntheticSet, SyntheticSet]:
+def data() -> tuple[WindowSet, WindowSet]:
     return generate(3, 160, seed=0, components=True), generate(3, 40, seed=1, components=True)
 
 

@@ -6,16 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import tiny_config as tiny
 from railwatch.detectors import create
 from railwatch.detectors.registry import GLR_VARIANTS, REGISTRY, class_for
 from railwatch.errors import RailwatchError
 from railwatch.scoring.residual import ResidualGLR
-from railwatch.synthetic import SyntheticSet, generate
+from railwatch.synthetic import generate
+from railwatch.windows import WindowSet
+from support import tiny_config as tiny
 
 
 @pytest.fixture(scope="module")
-def data() -> tuple[SyntheticSet, SyntheticSet]:
+def data() -> tuple[WindowSet, WindowSet]:
     return generate(3, 160, seed=0), generate(3, 40, seed=1)
 
 

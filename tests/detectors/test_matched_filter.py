@@ -1,4 +1,5 @@
-"""The matched-filter baseline (spec/detectors.md, "Reference detectors")."""
+"""The matched-filter baseline (docs/detectors.md, "Reference detectors: oracle and matched
+filter")."""
 
 from __future__ import annotations
 

@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import TINY
 from railwatch.cli import main
 from railwatch.deploy.onnx import CHECKSUM_KEY, META_KEY, load_onnx, read_metadata
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError
 from railwatch.recordings.pipeline import load_recording_model
+from support import TINY
 
 DEEP = ("cnn-ae", "aft-attention")
 DETECTORS = (*DEEP, "matched-filter")

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from conftest import brute_family_max
 from railwatch.detectors import create
 from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import log10_familywise_p
 from railwatch.synthetic import generate
+from support import brute_family_max
 
 
 def test_oracle_scores_are_the_calibrated_brute_force_glr() -> None:

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import write_mat73
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout, layout_toml, load_layout, parse_layout
 from railwatch.recordings.readers import Recording, write_recording
+from support import write_mat73
 
 FS = 200.0
 LAYOUT = Layout(fs=FS, channels=("a", "b"), groups=("axle", "body"), time="t", speed="v")

@@ -26,10 +26,10 @@ import pytest
 from hypothesis import HealthCheck, currently_in_test_context, event, given, settings
 from hypothesis import strategies as st
 
-from conftest import write_mat73
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording, write_recording
+from support import write_mat73
 
 FS = 100.0
 LAYOUT = Layout(fs=FS, channels=("a", "b"), groups=("axle", "body"), time="t")

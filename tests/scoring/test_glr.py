@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtri
 
-from conftest import brute_family_max
 from railwatch.scoring.glr import (
     box_sums,
     covering_max,
@@ -15,6 +14,7 @@ from railwatch.scoring.glr import (
     log10_familywise_p,
     scan,
 )
+from support import brute_family_max
 
 
 def test_box_sums_and_covering_max_match_loops() -> None:

@@ -1,4 +1,4 @@
-"""The benchmark generator against spec/benchmark.md."""
+"""The benchmark generator against its definition in docs/benchmark.md."""
 
 from __future__ import annotations
 

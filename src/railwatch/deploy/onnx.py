@@ -58,8 +58,13 @@ class _RawGraph(torch.nn.Module):
 
 
 def export_onnx(model: str | os.PathLike[str] | Detector, out: str | os.PathLike[str],
-                batch_size: int = 32) -> Path:
-    """Write ``model`` (a trained detector or its folder) as a self-contained ONNX file."""
+                batch_size: int = 32, verify: bool = True) -> Path:
+    """Write ``model`` (a trained detector or its folder) as a self-contained ONNX file.
+
+    A detector given as an object is left on its device. ``verify`` loads the written file
+    back (:func:`load_onnx`), so that a file that would not load onboard is removed now, with
+    a one-line error, instead of being found out there.
+    """
     folder = Path(model) if not isinstance(model, Detector) else None
     det = load_detector(folder) if folder is not None else model
     assert isinstance(det, Detector)
@@ -71,7 +76,8 @@ def export_onnx(model: str | os.PathLike[str] | Detector, out: str | os.PathLike
     example = torch.zeros(batch_size, det.n_steps_, det.n_channels_)
     with torch.no_grad():
         keys = list(det.raw(example.to(det.device_)).keys())
-    graph = _RawGraph(det, keys).to("cpu").eval()
+    device = det.device_
+    graph = _RawGraph(det, keys).to("cpu").eval()  # the exporter traces on the CPU
     det.device_ = torch.device("cpu")
     buf = io.BytesIO()
     try:
@@ -85,6 +91,9 @@ def export_onnx(model: str | os.PathLike[str] | Detector, out: str | os.PathLike
     except Exception as e:  # noqa: BLE001 - any exporter failure is one line for the user
         raise RailwatchError(f"{det.registry_name} does not export to ONNX: "
                              f"{type(e).__name__}: {' '.join(str(e).split())[:200]}") from None
+    finally:
+        det.model_.to(device)
+        det.device_ = device
     import onnx
 
     proto = onnx.load_from_string(buf.getvalue())
@@ -95,6 +104,12 @@ def export_onnx(model: str | os.PathLike[str] | Detector, out: str | os.PathLike
     out = Path(out)
     with atomic_path(out) as tmp:
         onnx.save(proto, tmp)
+    if verify:
+        try:
+            load_onnx(out)
+        except RailwatchError:
+            out.unlink(missing_ok=True)  # no file that looks exported but does not load
+            raise
     return out
 
 

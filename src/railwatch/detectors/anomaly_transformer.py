@@ -2,7 +2,7 @@
 
 A port of the mathematics of the official code (github.com/thuml/Anomaly-Transformer:
 ``model/embed.py``, ``model/attn.py``, ``model/AnomalyTransformer.py``, ``solver.py``), written
-device-agnostic; ``spec/detectors.md``, "Anomaly Transformer".
+device-agnostic; ``docs/detectors.md``, "Anomaly Transformer".
 
 Model (paper Section 3.1, Figure 1):
 
@@ -51,7 +51,7 @@ instance = max over steps (the default). No point adjustment; the threshold is t
 training-score quantile.
 
 Sizes: the official model has d_model 512, 8 heads, 3 layers, d_ff 512 (``official_config()``). The
-default here is CPU-friendly: d_model 64, 4 heads, 2 layers, d_ff 64, dropout 0, 10 epochs, batch
+default here is CPU-friendly: d_model 64, 4 heads, 2 layers, d_ff 64, dropout 0, 5 epochs, batch
 32, learning rate 1e-3: the official 1e-4 is tuned for epochs of thousands of steps (stride-1
 windows over long series, batch 256); an epoch here is ~60 steps of 32 windows, and with the rate
 halving every epoch 1e-4 leaves the model barely trained. The window is the benchmark's whole window

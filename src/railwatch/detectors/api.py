@@ -11,9 +11,10 @@ Contract (``docs/detectors.md``), in the style of scikit-learn and PyOD:
   :func:`railwatch.detectors.registry.load_detector` reads it back).
 
 Capabilities are class attributes (tags, as scikit-learn's estimator tags): ``normalize``,
-``fixed_length``, ``needs``, ``scoring_fields``, ``scoring_modes``. This module does not import
-torch: deep detectors subclass :class:`railwatch.detectors.training.TorchDetector`, which owns
-the device, seeding, batching, the validation split, early stopping and progress.
+``fixed_length``, ``needs``, ``scoring_fields``, ``scoring_modes``; ``report_maps`` is a property
+(it may depend on the scoring mode). This module does not import torch: deep detectors subclass
+:class:`railwatch.detectors.training.TorchDetector`, which owns the device, seeding, batching,
+the validation split, early stopping and progress.
 """
 
 from __future__ import annotations
@@ -177,7 +178,8 @@ class Detector(ABC):
     ``Config`` (its config dataclass), ``normalize`` (per-channel standardisation of inputs from
     training statistics, default on), ``fixed_length`` (scoring needs the fitted window length),
     ``needs`` (names of side arrays, e.g. the oracle's generator components, that ``fit`` and
-    ``score`` must receive in ``context``).
+    ``score`` must receive in ``context``); the property ``report_maps`` (the score comes with
+    maps worth drawing).
     """
 
     Config: ClassVar[type[DetectorConfig]] = DetectorConfig
@@ -191,6 +193,12 @@ class Detector(ABC):
     #: the default); :data:`GLR_SCORING` among them means the shared GLR scoring of its residual.
     scoring_modes: ClassVar[tuple[str, ...]] = ()
     registry_name: str = ""  # set by the registry (variants of one class differ here)
+
+    @property
+    def report_maps(self) -> bool:
+        """Whether ``score(X, extras=True)`` adds maps that show how the score was made, for a
+        report to draw on example windows (the attention model scoring by its attention)."""
+        return False
 
     def __init__(self, config: DetectorConfig | None = None, **overrides: Any) -> None:
         base = config if config is not None else self.Config()

@@ -1,7 +1,7 @@
 """Attention-Focused Transformer (the paper's model): input attention -> self-attention encoder ->
 MLP decoder, trained only by reconstruction, scored primarily by how its attention deviates.
 
-Architecture (``spec/detectors.md``, "Attention-Focused Transformer"; the paper's "Proposed Model"):
+Architecture (``docs/detectors.md``, "Attention-Focused Transformer"; the paper's "Proposed Model"):
 
 - **Channel-independent tokens.** Every channel's series is its own sequence through one shared
   network (batch B·C), so every channel has its own attention maps and its own attention score:
@@ -13,7 +13,7 @@ Architecture (``spec/detectors.md``, "Attention-Focused Transformer"; the paper'
 - **Patch tokens.** A strided Conv1d merges ``patch`` consecutive weighted samples into one token
   (T = 200, patch 8 -> 25 tokens), plus sinusoidal positions. This is what makes the model fast:
   attention costs L² = 625 per head instead of 40 000 at one token per sample.
-- **Encoder.** ``n_layers`` pre-norm blocks of multi-head self-attention (written out by hand, so
+- **Encoder.** ``n_layers`` post-norm blocks of multi-head self-attention (written out by hand, so
   that every softmax row can be read) and a GELU feed-forward layer.
 - **Decoder.** An MLP per token back to its ``patch`` samples: every time step is reconstructed.
 
@@ -41,9 +41,9 @@ Scores (``scoring``):
   reconstruction, 0.906 combined with the default input scale (each window divided by its own
   std); 0.927 / 0.918 / 0.943 with ``input_scale="training"`` (see ``docs/detectors.md``, "The
   attention model's input scale"). The attention score varies with the training seed.
-- ``reconstruction``: squared reconstruction error per sample and channel, divided by its window
-  median (a scale-free ratio, robust to the per-window noise level) and standardised per channel by
-  validation statistics (median, MAD).
+- ``reconstruction``: the logarithm of the squared reconstruction error per sample and channel
+  divided by its window median (a scale-free ratio, robust to the per-window noise level),
+  standardised per channel by validation statistics (median, MAD).
 - ``combined``: the mean of the two standardised scores.
 - ``glr``: the shared GLR scoring of the signed reconstruction residual (not the paper's; the
   same for every reconstruction model: ``TorchDetector.glr_scores``).
@@ -305,6 +305,11 @@ class AttentionFocusedTransformer(TorchDetector):
     scoring_modes: ClassVar[tuple[str, ...]] = SCORING_MODES
 
     keep_maps_ = False  # set while scoring with extras=True
+
+    @property
+    def report_maps(self) -> bool:
+        """Scoring by attention, the attention maps show how the score was made."""
+        return self.config.scoring == "attention"
 
     def build(self, n_steps: int, n_channels: int) -> nn.Module:
         if self.config.input_scale not in INPUT_SCALES:

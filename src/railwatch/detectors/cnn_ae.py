@@ -1,6 +1,6 @@
 """CNN autoencoder: strided Conv1d encoder, transposed-conv decoder back to (T, C).
 
-Architecture (``spec/detectors.md``, "CNN autoencoder"): ``len(widths)`` stride-2 Conv1d layers
+Architecture (``docs/detectors.md``, "CNN autoencoder"): ``len(widths)`` stride-2 Conv1d layers
 (T -> T / 2^L) and a 1×1 convolution down to ``latent`` channels, the bottleneck; a mirrored
 decoder of ConvTranspose1d layers and a linear 1×1 head. Windows are padded by reflection to a
 multiple of 2^L before the encoder and the reconstruction is cropped back, so any T round-trips.

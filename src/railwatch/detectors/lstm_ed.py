@@ -1,6 +1,6 @@
 """LSTM encoder-decoder, "EncDec-AD" (Malhotra et al. 2016).
 
-Method (``spec/detectors.md``, "LSTM encoder-decoder"; the paper's section 2):
+Method (``docs/detectors.md``, "LSTM encoder-decoder"; the paper's section 2):
 
 - An encoder LSTM reads the window x_1 .. x_T; its final state (h_T, c_T) initialises the decoder.
 - The decoder reconstructs the window in **reverse order**: x̂_T = W h_T^D + b from the initial

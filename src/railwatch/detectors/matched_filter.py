@@ -1,5 +1,5 @@
-"""Matched filter: the classical, training-light baseline (``spec/detectors.md``, "Reference
-detectors").
+"""Matched filter: the classical, training-light baseline (``docs/detectors.md``, "Reference
+detectors: oracle and matched filter").
 
 Per window and channel (a series ``x`` of ``T`` samples), all vectorised over the N·C series:
 

@@ -1,6 +1,6 @@
 """MSCRED (Zhang et al. 2019): multi-scale signature matrices, attention ConvLSTM, broken entries.
 
-Pipeline (``spec/detectors.md``, "MSCRED"), for windows ``X`` (N, T, C):
+Pipeline (``docs/detectors.md``, "MSCRED"), for windows ``X`` (N, T, C):
 
 1. **Min-max normalisation** per channel with the minimum and maximum of the training windows
    (``stats_["input_min"]``, ``stats_["input_range"]``), to [-1, 1] rather than [0, 1]. The base

@@ -1,5 +1,5 @@
-"""The oracle: the achievable ceiling of each synthetic stage (``spec/detectors.md``, "Reference
-detectors").
+"""The oracle: the achievable ceiling of each synthetic stage (``docs/detectors.md``, "Reference
+detectors: oracle and matched filter").
 
 It is handed the generator's components (``generate(..., components=True)``): the nuisance signal
 (everything but white noise and the anomaly) and the per-sample noise std. Its whitened residual
@@ -7,7 +7,7 @@ It is handed the generator's components (``generate(..., components=True)``): th
     r = (X − nuisance) / noise_std          (N, T, C), i.i.d. N(0, 1) wherever there is no anomaly
 
 carries only noise and the anomaly, so a generalised likelihood-ratio (GLR) test for the
-benchmark's two anomaly kinds (``spec/benchmark.md``, "Anomalies") is optimal up to the unknown
+benchmark's two anomaly kinds (``docs/benchmark.md``, "Anomalies") is optimal up to the unknown
 amplitude, sign, position and length:
 
 - spike at ``t``: ``|r_t|``;

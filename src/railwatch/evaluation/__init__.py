@@ -1,1 +1,1 @@
-"""Evaluation: metrics, localisation, timing, tables, figures and the report."""
+"""Evaluation: the metrics, localisation and timing of scored windows, and the scores file."""

@@ -1,4 +1,4 @@
-"""The metrics of ``spec/evaluation.md``, one named function each. No point adjustment anywhere.
+"""The metrics of ``docs/evaluation.md``, one named function each. No point adjustment anywhere.
 
 Labels come from the generator (``y``, ``mask``, ``channel``); scores from a detector. Nothing here
 chooses a threshold on the test set: ``f1_fitted`` takes predictions made with the threshold the

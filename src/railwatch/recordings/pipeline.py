@@ -95,6 +95,17 @@ def recording_info(layout: Layout, prep: Preparation, threshold: float) -> dict[
     return {model_folder.RECORDING: json.dumps(info, indent=2)}
 
 
+def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
+                        prep: Preparation, out: str | os.PathLike[str]) -> float:
+    """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set the event
+    threshold by :func:`null_threshold` and save the model folder with ``recording.json``
+    (the layout, the preparation and the threshold); returns the threshold."""
+    detector.fit(X)
+    threshold = null_threshold(detector.decision_scores_)
+    detector.save(out, extra_files=recording_info(layout, prep, threshold))
+    return threshold
+
+
 @dataclass
 class RecordingModel:
     """A detector trained on recordings, with how to prepare new ones and its event threshold."""

@@ -13,8 +13,8 @@ from numpy.typing import NDArray
 
 from railwatch.synthetic.components import span_mask
 from railwatch.synthetic.stages import StageConfig
+from railwatch.windows import LOCAL, NORMAL, SPIKE
 
-NORMAL, SPIKE, LOCAL = 0, 1, 2
 ANOMALY_RATE = 0.10
 #: The benchmark's reference rate: a spike lasts one sample of it (0.01 s) at any fs.
 REFERENCE_FS = 100.0

@@ -1,22 +1,16 @@
-"""Generate, save and load labelled benchmark sets.
-
-A set is windows ``X`` (n, T, C) float32 with their labels, every sampled parameter and a ``meta``
-record. On disk it is one ``.npz`` that plain ``numpy.load`` reads (``meta`` is a JSON string).
+"""Generate labelled benchmark sets: windows ``X`` (n, T, C) float32 with their labels, every
+sampled parameter and a ``meta`` record, as a :class:`railwatch.windows.WindowSet` (saved as one
+window file).
 """
 
 from __future__ import annotations
 
-import json
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.atomic import atomic_path
 from railwatch.progress import Progress
 from railwatch.synthetic import components as comp
 from railwatch.synthetic.anomalies import Anomalies, sample_anomalies
@@ -28,10 +22,12 @@ from railwatch.synthetic.stages import (
     PHASE_VARS,
     SPEC_VERSION,
     SPEED_VARS,
+    STAGES,
     StageConfig,
     draw_uniform,
     stage,
 )
+from railwatch.windows import LOCAL, PARAM_PREFIX, SPIKE, WindowSet
 
 #: Named seed streams, split from one SeedSequence. The index of a name never changes, so that
 #: adding a component to a stage leaves every other component's draws untouched.
@@ -40,7 +36,6 @@ STREAMS = ("base", "phase", "speed", "noise_change", "noise", "bursts", "impulse
 #: Instances rendered at once: bounds memory at a few (chunk, T, C) float64 arrays.
 CHUNK = 512
 
-PARAM_PREFIX = "param_"
 LABEL_KEYS = ("anomaly_start", "anomaly_duration", "anomaly_offset")
 
 
@@ -58,59 +53,6 @@ def streams(seed: int) -> dict[str, np.random.Generator]:
     return {name: np.random.default_rng(stream_seed(seed, name)) for name in STREAMS}
 
 
-@dataclass
-class SyntheticSet:
-    """A generated benchmark set (arrays batch-first, times in seconds)."""
-
-    X: NDArray[np.float32]  # (n, T, C)
-    y: NDArray[np.int8]  # (n,)
-    mask: NDArray[np.bool_]  # (n, T, C)
-    kind: NDArray[np.int8]  # (n,) 0 normal, 1 spike, 2 local
-    channel: NDArray[np.int16]  # (n,) anomalous channel or -1
-    params: dict[str, NDArray[np.float64]]  # name -> (n, C) per-channel or (n,) anomaly variables
-    meta: dict[str, Any]
-    nuisance: NDArray[np.float32] | None = None  # (n, T, C) signal without noise and anomaly
-    noise_std: NDArray[np.float32] | None = None  # (n, T, C)
-    extras: dict[str, NDArray[Any]] = field(default_factory=dict)
-
-    @property
-    def n(self) -> int:
-        return int(self.X.shape[0])
-
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write one ``.npz`` atomically (temporary file, then rename): nothing partial is left."""
-        arrays: dict[str, Any] = {
-            "X": self.X, "y": self.y, "mask": self.mask, "kind": self.kind, "channel": self.channel,
-            "meta": np.array(json.dumps(self.meta)),
-        }
-        arrays.update({PARAM_PREFIX + k: v for k, v in self.params.items()})
-        if self.nuisance is not None:
-            arrays["nuisance"] = self.nuisance
-        if self.noise_std is not None:
-            arrays["noise_std"] = self.noise_std
-        return atomic_savez(path, arrays)
-
-    @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> SyntheticSet:
-        """Read a set written by :meth:`save`."""
-        with np.load(path, allow_pickle=False) as f:
-            meta = json.loads(str(f["meta"]))
-            params = {k[len(PARAM_PREFIX):]: f[k] for k in f.files if k.startswith(PARAM_PREFIX)}
-            return cls(
-                X=f["X"], y=f["y"], mask=f["mask"], kind=f["kind"], channel=f["channel"],
-                params=params, meta=meta,
-                nuisance=f["nuisance"] if "nuisance" in f.files else None,
-                noise_std=f["noise_std"] if "noise_std" in f.files else None,
-            )
-
-
-def atomic_savez(path: str | os.PathLike[str], arrays: dict[str, Any]) -> Path:
-    """``np.savez`` written atomically: complete at ``path``, or not there at all."""
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-    return Path(path)
-
-
 def generate(
     stage_number: int,
     n: int,
@@ -121,7 +63,7 @@ def generate(
     exact_rate: bool = True,
     components: bool = False,
     progress: bool = False,
-) -> SyntheticSet:
+) -> WindowSet:
     """Generate ``n`` labelled windows of one benchmark stage.
 
     Parameters are drawn in physical units from named seed streams, then rendered on the grid
@@ -181,10 +123,28 @@ def generate(
         "param_keys": [PARAM_PREFIX + k for k in params],
         "kinds": {"0": "normal", "1": "spike", "2": "local deviation"},
     }
-    return SyntheticSet(
+    return WindowSet(
         X=X, y=anomalies.y, mask=mask, kind=anomalies.kind, channel=anomalies.channel,
         params=params, meta=meta, nuisance=nuisance, noise_std=noise_std,
     )
+
+
+def stage_examples(seed: int = 0) -> list[tuple[WindowSet, int]]:
+    """For every stage, a small set and the index of one anomalous instance to show (Figure 1).
+
+    Each stage draws from its own seed, ``seed`` + stage number: under one seed the anomalies of
+    all stages coincide (the streams nest), which would show the same anomaly eight times. Odd
+    stages show a spike, even stages a local deviation, so both kinds appear.
+    """
+    examples = []
+    for number in sorted(STAGES):
+        data = generate(number, 60, seed + number)
+        want = SPIKE if number % 2 else LOCAL
+        candidates = np.flatnonzero(data.kind == want)
+        assert data.y is not None and data.kind is not None
+        examples.append((data, int(candidates[0] if candidates.size
+                                   else np.flatnonzero(data.y)[0])))
+    return examples
 
 
 def draw_parameters(

@@ -2,7 +2,8 @@
 and the sampling of every per-channel random variable.
 
 Source: the paper's section "Incremental synthetic data benchmark" as settled by
-``spec/benchmark.md`` (spec version :data:`SPEC_VERSION`). Each stage builds on the previous one.
+``docs/benchmark.md``, "Stages" (spec version :data:`SPEC_VERSION`). Each stage builds on the
+previous one.
 
 >>> stage(7).n_channels, stage(7).n_random_variables
 (6, 84)

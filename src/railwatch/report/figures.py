@@ -16,13 +16,10 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.scoring import GLR_SUFFIX
-from railwatch.synthetic import STAGES, SyntheticSet, generate
-from railwatch.synthetic.anomalies import LOCAL, SPIKE
+from railwatch.windows import KIND_NAMES, WindowSet
 
 if TYPE_CHECKING:
     from railwatch.recordings.pipeline import Detection
-
-KIND_NAMES = {SPIKE: "spike", LOCAL: "local deviation"}
 
 
 def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 110) -> Path:
@@ -33,22 +30,10 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 110) -> Pa
     return Path(path)
 
 
-def _example(stage_number: int, seed: int) -> tuple[SyntheticSet, int]:
-    """A small set of the stage and the index of one anomalous instance to show.
-
-    Each stage draws from its own seed: under one seed the anomalies of all stages coincide
-    (the streams nest), which would show the same anomaly eight times.
-
-    Odd stages show a spike, even stages a local deviation, so both kinds appear.
-    """
-    data = generate(stage_number, 60, seed)
-    want = SPIKE if stage_number % 2 else LOCAL
-    candidates = np.flatnonzero(data.kind == want)
-    return data, int(candidates[0] if candidates.size else np.flatnonzero(data.y)[0])
-
-
-def stages_figure(seed: int = 0) -> Figure:
-    """The paper's missing Figure 1: one anomalous instance per stage.
+def stages_figure(examples: Sequence[tuple[WindowSet, int]], seed: int = 0) -> Figure:
+    """The paper's missing Figure 1: one anomalous instance per stage, ``examples`` giving each
+    stage's windows and the instance to draw (:func:`railwatch.synthetic.stage_examples`, drawn
+    with ``seed``).
 
     Channels are stacked with a vertical offset. The anomaly is drawn in red on a red band;
     speed changes (t_change) are dashed, noise steps dotted, HF bursts shaded orange and impulse
@@ -57,8 +42,7 @@ def stages_figure(seed: int = 0) -> Figure:
     """
     fig = Figure(figsize=(15, 16), layout="constrained")
     axes = fig.subplots(4, 2).ravel()
-    for ax, number in zip(axes, sorted(STAGES), strict=True):
-        data, i = _example(number, seed + number)
+    for ax, (data, i) in zip(axes, examples, strict=True):
         _draw_instance(ax, data, i)
     handles = [
         ("red", "-", "anomaly (injected offset)"), ("tab:green", "--", "t_change (speed change)"),
@@ -75,7 +59,7 @@ def stages_figure(seed: int = 0) -> Figure:
     return fig
 
 
-def _draw_instance(ax, data: SyntheticSet, i: int) -> None:  # type: ignore[no-untyped-def]
+def _draw_instance(ax, data: WindowSet, i: int) -> None:  # type: ignore[no-untyped-def]
     meta, p = data.meta, data.params
     fs, n_ch = meta["fs"], meta["n_channels"]
     t = np.arange(meta["n_steps"]) / fs
@@ -127,7 +111,7 @@ def auc_vs_stage_figure(
 ) -> Figure:
     """AUC against stage for every detector (mean ± std over seeds), the oracle ceiling dashed
     black, and the paper's Table I as faint dotted lines in the same colours."""
-    from railwatch.evaluation.tables import PAPER_TABLE1, aggregate, mean_std
+    from railwatch.report.tables import PAPER_TABLE1, aggregate, mean_std
 
     agg = aggregate(records, metric)
     stages = sorted({int(r["stage"]) for r in records})

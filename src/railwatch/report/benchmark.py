@@ -1,7 +1,8 @@
-"""Write a benchmark run's outputs: results.json, the tables, the figures and report.html.
+"""A benchmark run's report: results.json, the tables, the figures and report.html.
 
-Everything is derived from the finished cells on disk, so the report can be rebuilt at any time
-(``railwatch bench`` rebuilds it at the end of every run, recomputing nothing).
+Drawn from what the benchmark hands over (its records, the kept arrays of seed 0, one attention
+example, the stages' example windows): the report computes nothing and generates no data, so it
+can be rebuilt at any time (``railwatch bench`` rebuilds it at the end of every run).
 """
 
 from __future__ import annotations
@@ -10,18 +11,18 @@ import base64
 import datetime
 import json
 import logging
-from dataclasses import asdict
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
 from html import escape
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
-import numpy as np
+from numpy.typing import NDArray
 
-from railwatch.atomic import atomic_path
-from railwatch.bench.presets import Preset
-from railwatch.bench.run import ATTENTION_DETECTORS, ResultStore, cells, dataset
-from railwatch.evaluation import figures as F
-from railwatch.evaluation import tables as T
+from railwatch.report import figures as F
+from railwatch.report import tables as T
+from railwatch.report.pages import write_text
+from railwatch.windows import WindowSet
 
 log = logging.getLogger(__name__)
 
@@ -37,24 +38,39 @@ FIGURES = {
 }
 
 
-def _write_text(path: Path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+class Preset(Protocol):
+    """What the report reads of the benchmark's preset."""
+
+    name: str
+    n_train: int
+    n_test: int
+    seeds: int
+    detectors: tuple[str, ...]
+
+    def overrides_for(self, detector: str) -> dict[str, Any]: ...
 
 
-def write_markdown(path: str | Path, lines: list[str]) -> str:
-    """Write a benchmark script's result page whole or not at all (its folder created); returns
-    the text, for the script to print."""
-    path, text = Path(path), "\n".join(lines) + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _write_text(path, text)
-    return text
+@dataclass(frozen=True)
+class AttentionExample:
+    """One anomalous test window with the attention model's map of its anomalous channel."""
+
+    x: NDArray[Any]  # (T, C)
+    mask: NDArray[Any]  # (T, C)
+    point: NDArray[Any]  # (T,) point score
+    attention: NDArray[Any]  # (L, L) mean over layers and heads
+    title: str
 
 
 def write_report(out: Path, preset: Preset, records: list[dict[str, Any]],
+                 arrays: dict[tuple[int, str], dict[str, Any]],
+                 attention: AttentionExample | None,
+                 stage_examples: Sequence[tuple[WindowSet, int]],
                  wall_s: float | None = None) -> Path:
-    """Write every output file of a run into ``out``; returns the path of report.html."""
-    store = ResultStore(out)
+    """Write every output file of a run into ``out``; returns the path of report.html.
+
+    ``arrays``: the kept arrays of each seed-0 cell by (stage, detector); ``attention``: the
+    attention figure's window, if the run has one; ``stage_examples``: one window per stage.
+    """
     stages = sorted({int(r["stage"]) for r in records})
     detectors = [d for d in preset.detectors if any(r["detector"] == d for r in records)]
     env = records[0]["environment"] if records else {}
@@ -62,12 +78,12 @@ def write_report(out: Path, preset: Preset, records: list[dict[str, Any]],
                 f"{env.get('torch', '?')} ({env.get('torch_threads', '?')} threads)"
                 + (f", GPU {env['gpu']}" if env.get("gpu") else ", CPU only"))
     run_info = {
-        "date": datetime.date.today().isoformat(), "preset": asdict(preset),
+        "date": datetime.date.today().isoformat(), "preset": asdict(preset),  # type: ignore[call-overload]
         "environment": env,
         "wall_s": wall_s,  # this invocation (cells reused from an earlier one take ~0 s)
         "cells_s": sum(float(r.get("cell_s") or 0.0) for r in records),  # computing every cell
     }
-    _write_text(out / "results.json", json.dumps({"run": run_info, "cells": records}, indent=1))
+    write_text(out / "results.json", json.dumps({"run": run_info, "cells": records}, indent=1))
 
     t1 = T.auc_table(records, "auc_instance", stages, detectors, with_paper=True)
     t1p = T.auc_table(records, "auc_point", stages, detectors, with_paper=False)
@@ -80,65 +96,41 @@ def write_report(out: Path, preset: Preset, records: list[dict[str, Any]],
               f"windows per stage, {preset.seeds} seed(s); {env_text}.\n\n")
     reasons = why_different(records, stages, detectors)
     why = "\n\n".join(f"**{title}.** {text}" for title, text in reasons)
-    _write_text(out / "table1.md", "# Table I: AUC per stage\n\n" + header + t1.markdown()
+    write_text(out / "table1.md", "# Table I: AUC per stage\n\n" + header + t1.markdown()
                 + "\n" + diff.markdown() + "\n" + gap.markdown()
                 + "\n## Why our numbers differ from the paper's\n\n" + why + "\n\n"
                 + t1p7.markdown() + "\n" + t1p.markdown())
-    _write_text(out / "table1.csv", T.table1_csv(records))
-    _write_text(out / "table2.md", "# Table II: inference time\n\n" + header + t2.markdown())
-    _write_text(out / "localization.md", "# Localisation\n\n" + header + loc.markdown())
+    write_text(out / "table1.csv", T.table1_csv(records))
+    write_text(out / "table2.md", "# Table II: inference time\n\n" + header + t2.markdown())
+    write_text(out / "localization.md", "# Localisation\n\n" + header + loc.markdown())
 
-    figs = _figures(out, preset, records, store, stages, detectors)
+    figs = _figures(out, records, arrays, attention, stage_examples, stages, detectors)
     html = _html(preset, run_info, env_text, [t1, diff, gap, t1p7, t1p, t2, loc], figs, out,
                  reasons)
-    _write_text(out / "report.html", html)
+    write_text(out / "report.html", html)
     return out / "report.html"
 
 
-def _figures(out: Path, preset: Preset, records: list[dict[str, Any]], store: ResultStore,
-             stages: list[int], detectors: list[str]) -> list[str]:
+def _figures(out: Path, records: list[dict[str, Any]],
+             arrays: dict[tuple[int, str], dict[str, Any]], attention: AttentionExample | None,
+             stage_examples: Sequence[tuple[WindowSet, int]], stages: list[int],
+             detectors: list[str]) -> list[str]:
     made = []
     F.save_figure(F.auc_vs_stage_figure(records, detectors), out / "auc_vs_stage.png")
     F.save_figure(F.auc_vs_stage_figure(records, detectors, "auc_point"),
                   out / "auc_point_vs_stage.png")
     made += ["auc_vs_stage.png", "auc_point_vs_stage.png"]
-    seed0 = [c for c in cells(preset) if c.seed == 0 and store.done(preset, c)]
-    arrays = {(c.stage, c.detector): store.arrays(c) for c in seed0}
     F.save_figure(F.score_histograms_figure(arrays, stages, detectors), out / "score_hist.png",
                   dpi=80)
     made.append("score_hist.png")
-    example = _attention_example(preset, store, seed0, arrays)
-    if example is not None:
-        F.save_figure(example, out / "attention_example.png")
+    if attention is not None:
+        F.save_figure(F.attention_example_figure(attention.x, attention.mask, attention.point,
+                                                 attention.attention, attention.title),
+                      out / "attention_example.png")
         made.append("attention_example.png")
-    F.save_figure(F.stages_figure(0), out / "stages.png", dpi=80)
+    F.save_figure(F.stages_figure(stage_examples, 0), out / "stages.png", dpi=80)
     made.append("stages.png")
     return made
-
-
-def _attention_example(preset, store, seed0, arrays):  # type: ignore[no-untyped-def]
-    """The first stage's attention-model cell, first anomalous test window (a local deviation
-    if there is one, as it spans several tokens)."""
-    for c in seed0:
-        if c.detector not in ATTENTION_DETECTORS:
-            continue
-        a = arrays[(c.stage, c.detector)]
-        layers = [a[k] for k in sorted(a) if k.startswith("extra_attention_")]
-        if not layers:
-            return None
-        maps = np.stack(layers, axis=2)  # (n_examples, C, layers, heads, L, L)
-        kinds = a["kind"][a["example_index"]]
-        j = int(np.argmax(kinds == 2)) if (kinds == 2).any() else 0
-        test = dataset(store.cache, c.stage, c.seed, preset.n_test, "test")
-        i = int(a["example_index"][j])
-        ch = int(test.channel[i])
-        # extra_attention: (n_examples, C, layers, heads, L, L) -> mean over layers and heads.
-        att = maps[j, ch].mean(axis=(0, 1))
-        kind = "local deviation" if test.kind[i] == 2 else "spike"
-        title = f"stage {c.stage}, test window {i}: {kind} on channel {ch}"
-        return F.attention_example_figure(test.X[i], test.mask[i], a["example_point"][j], att,
-                                          title)
-    return None
 
 
 def why_different(records: list[dict[str, Any]], stages: list[int],

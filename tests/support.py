@@ -1,4 +1,4 @@
-"""Shared test helpers."""
+"""Helpers shared by the tests (on the import path through pyproject's pytest `pythonpath`)."""
 
 from __future__ import annotations
 

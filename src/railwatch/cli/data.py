@@ -1,0 +1,127 @@
+"""Commands that make data: ``generate`` (a benchmark stage), ``generate-run`` (a synthesised
+recording) and ``figure stages``."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from railwatch.cli.common import info, writable_file
+
+STAGE_TABLE = """\b
+  stage  channels  adds
+  1      1         sinusoid + white noise (3 random variables)
+  2      1         phase-continuous speed change at t_change (6)
+  3      2         two channels, phase offsets (14)
+  4      2         noise std steps up at t_noisechange (18)
+  5      6         axle / bogie / body groups with their own ranges (54)
+  6      6         anomalous channel drawn from kind-specific odds (54)
+  7      6         one high-frequency burst on every channel (84)
+  8      6         periodic truncated-Gaussian impulses (102)"""
+
+
+@click.command(epilog=STAGE_TABLE)
+@click.option("--stage", "stage_number", type=click.IntRange(1, 8), required=True,
+              help="Benchmark stage, 1-8 (table below).")
+@click.option("--n", type=click.IntRange(min=1), default=1000, show_default=True,
+              help="Number of windows. Exactly round(0.1 n) are anomalous, half of them spikes.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed; the same seed, stage and n give bit-identical output.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Output .npz file (written atomically; loads with plain numpy.load).")
+@click.option("--components", is_flag=True,
+              help="Also store the nuisance signal and per-sample noise std (for the oracle).")
+@click.option("--fs", type=click.FloatRange(min=0, min_open=True), default=100.0,
+              show_default=True,
+              help="Sampling rate in Hz. 2000 gives field-rate data: the same signals 20x finer.")
+@click.option("--duration", type=click.FloatRange(min=0.2), default=2.0, show_default=True,
+              help="Window length in seconds.")
+@click.option("--bernoulli", is_flag=True,
+              help="Draw each window anomalous with probability 0.1 instead of exactly 10 %.")
+@click.pass_obj
+def generate(obj: dict, stage_number: int, n: int, seed: int, out: Path, components: bool,
+             fs: float, duration: float, bernoulli: bool) -> None:
+    """Generate one labelled set of a benchmark stage into an .npz file.
+
+    \b
+    The file holds X (n, T, C) float32 windows, y (n,) instance labels, mask (n, T, C) true where
+    an anomaly was added, kind (n,) 0 normal / 1 spike / 2 local deviation, channel (n,) the
+    anomalous channel or -1, every sampled parameter as param_<name>, and meta, a JSON string
+    (stage, seed, fs, channel names and groups, spec version, parameter keys).
+    """
+    from railwatch.synthetic import generate as generate_set
+
+    writable_file(out)
+    started = time.perf_counter()
+    data = generate_set(stage_number, n, seed, fs=fs, duration=duration,
+                        exact_rate=not bernoulli, components=components,
+                        progress=obj["progress"])
+    data.save(out)
+    info(f"wrote {out}: stage {stage_number}, X {data.X.shape}, {int(data.y.sum())} anomalous "
+         f"({int((data.kind == 1).sum())} spikes), {time.perf_counter() - started:.1f} s")
+
+
+@click.group()
+def figure() -> None:
+    """Draw figures (PNG)."""
+
+
+@figure.command("stages")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Output PNG file.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the example windows.")
+def figure_stages(out: Path, seed: int) -> None:
+    """The paper's Figure 1: one anomalous window of each of the 8 stages.
+
+    The anomaly is red, speed changes dashed green, noise steps dotted purple, HF bursts shaded
+    orange, impulse onsets triangles; each title gives the number of random variables.
+    """
+    from railwatch.report.figures import save_figure, stages_figure
+    from railwatch.synthetic import stage_examples
+
+    writable_file(out)
+    save_figure(stages_figure(stage_examples(seed), seed), out)
+    info(f"wrote {out}")
+
+
+@click.command("generate-run")
+@click.option("--minutes", type=float, default=10.0, show_default=True,
+              help="Length of the run.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--fs", type=float, default=2000.0, show_default=True, help="Sampling rate (Hz).")
+@click.option("--defect-every", "every_s", type=float, default=10.0, show_default=True,
+              help="Mean seconds between defects.")
+@click.option("--stage", type=click.IntRange(5, 8), default=5, show_default=True,
+              help="Benchmark stage carried into continuous time: 5 signals and changing noise, "
+                   "6 + channel odds by defect kind, 7 + HF bursts at rough spots of the track, "
+                   "8 + wheel-periodic impulses.")
+@click.option("--loud-stretches", is_flag=True,
+              help="Rough sections of track (200-1500 m, 4 in 10) with 2-4x the noise.")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks).")
+@click.pass_obj
+def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float, stage: int,
+                 loud_stretches: bool, out: Path) -> None:
+    """Synthesise a long six-channel field-rate run with defects at known times and positions.
+
+    \b
+    Writes OUT, OUT's layout (<name>.layout.toml) and the true defects (<name>.defects.csv).
+    Stage-5 signals (axle, bogie, body groups) with a speed profile and changing noise; defects
+    one every 10 s on average: spikes of +-3-4, local deviations of +-1.5-2 (0.05-0.2 s).
+    --stage 7 and 8 add the later stages' nuisance, tied to the track and the wheels;
+    --loud-stretches makes the noise level of whole sections of track change.
+    Examples:
+      railwatch generate-run --minutes 10 --seed 1 --out train1.parquet
+      railwatch generate-run --stage 8 --loud-stretches --seed 4 --out rough.parquet
+    """
+    from railwatch.synthetic.run_files import check_run_settings, write_run
+
+    check_run_settings(out, minutes, every_s, fs)
+    writable_file(out)
+    run, layout_path, truth_path = write_run(out, minutes, seed=seed, fs=fs, every_s=every_s,
+                                             stage=stage, loud_stretches=loud_stretches)
+    info(f"wrote {minutes:g} min at {fs:g} Hz with {len(run.defects)} defects: {out}, "
+         f"{layout_path}, {truth_path}")
