@@ -109,7 +109,7 @@ def main() -> None:
               "--truth", str(work / "test.defects.csv"))
 
     # The same run at the detector's own threshold (the spec's contamination quantile, 0.10)
-    # instead of the recordings rule (null_threshold): why train --recordings fits its own.
+    # instead of the recordings rule (GumbelNull): why train --recordings fits its own.
     from railwatch.recordings.pipeline import load_recording_model as _load
 
     own = _load(model)
@@ -162,7 +162,7 @@ def main() -> None:
     lines += [
         "", "Wall time is the whole command: Python start-up, model load, reading Parquet, "
         "resampling 2000 -> 100 Hz, scoring every 2-s window every 0.5 s, events, CSV.", "",
-        f"Event threshold: the recordings rule (`null_threshold`, {own.threshold:.3g}) against the "
+        f"Event threshold: the recordings rule (`GumbelNull`, {own.threshold:.3g}) against the "
         f"detector's own contamination-0.10 threshold ({own.detector.threshold_:.3g}) on the "
         f"10-minute run: {rows[0][6]:.0%} vs {own_found:.0%} of defects found, "
         f"{rows[0][7]:.2f} vs {own_false / 10:.2f} false events per minute.", "",

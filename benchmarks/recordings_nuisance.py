@@ -41,9 +41,9 @@ def run_file(work: Path, kind: str, seed: int) -> Path:
 
 def model_threshold(model: Path) -> float:
     """The event threshold a recordings model was trained with (when it gave no event)."""
-    import json
+    from railwatch.recordings.pipeline import load_recording_model
 
-    return float(json.loads((model / "recording.json").read_text())["threshold"])
+    return load_recording_model(model).threshold
 
 
 def best_at_false_rate(events: list[dict], truth: Path,  # type: ignore[type-arg]

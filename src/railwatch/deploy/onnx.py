@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.detectors import model_folder
-from railwatch.detectors.api import Detector, config_from_dict, positive_count, verify_restored
+from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
 from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError, naming, one_line
@@ -135,8 +135,9 @@ def _metadata(det: Detector, keys: list[str], folder: Path | None) -> dict[str, 
     }
 
 
-class OnnxBackend:
-    """Runs the exported graph: a normalised batch -> raw outputs (the TorchDetector hook).
+class OnnxNetwork:
+    """Runs the exported graph: a normalised batch -> raw outputs (the
+    :class:`railwatch.detectors.training.Network` protocol, as the torch module).
 
     ``model`` is the file's content when the caller has read it already (it is then not read a
     second time). Failures of onnxruntime, creating the session or running it, are one-line
@@ -251,25 +252,22 @@ def load_onnx(path: str | os.PathLike[str], threads: int | None = None) -> Detec
         cls = class_for(meta["detector"])
         if not issubclass(cls, TorchDetector):
             raise RailwatchError(f"its metadata names {meta['detector']}, which has no network")
-        try:
-            config = config_from_dict(cls.Config, meta["config"])
-        except RailwatchError as e:
-            raise RailwatchError(f"its config does not fit {meta['detector']} ({e})") from None
-        det = cls(config)
-        det.registry_name = meta["detector"]
-        det.n_steps_, det.n_channels_ = (positive_count(meta, k, "its metadata")
-                                          for k in ("n_steps", "n_channels"))
         keys = meta["outputs"]
         if not isinstance(keys, list) or not keys or not all(isinstance(k, str) for k in keys):
             raise RailwatchError("its metadata lists no outputs")
         stats = base64.b64decode(meta["stats"], validate=True)
         with np.load(io.BytesIO(stats), allow_pickle=False) as f:
-            det.stats_ = {k: f[k] for k in f.files}
-        det.device_ = torch.device("cpu")
-        backend = OnnxBackend(path, keys, threads, model=data)
-        backend.check(det.n_steps_, det.n_channels_)
-        det.backend_ = backend
-        verify_restored(det)
+            arrays = {k: f[k] for k in f.files}
+
+        def attach(det: Detector) -> None:
+            assert isinstance(det, TorchDetector)
+            network = OnnxNetwork(path, keys, threads, model=data)
+            network.check(det.n_steps_, det.n_channels_)
+            det.device_ = torch.device("cpu")
+            det.network_ = network
+
+        det = cls.restored(meta["detector"], meta["config"], meta, arrays, "its metadata",
+                           attach)
     except RailwatchError as e:
         raise naming(str(path), e) from None
     except Exception as e:  # noqa: BLE001 - damaged metadata, whatever the exception

@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError, one_line
 from railwatch.scoring.reduce import Localization, localize
+from railwatch.scoring.thresholds import ContaminationQuantile, ThresholdRule
 
 if TYPE_CHECKING:
     import torch
@@ -254,8 +255,15 @@ class Detector(ABC):
     def _fit_threshold(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
         """``threshold_``: the ``1 − contamination`` quantile of the training instance scores."""
         self.decision_scores_ = self._score(X, context, extras=False).instance
-        self.threshold_ = float(np.quantile(self.decision_scores_, 1.0 - self.config.contamination))
+        self.set_threshold(ContaminationQuantile(self.config.contamination))
+
+    def set_threshold(self, rule: ThresholdRule) -> float:
+        """Fit ``threshold_`` to the training instance scores (``decision_scores_``) by ``rule``
+        (:mod:`railwatch.scoring.thresholds`), replacing the fitted one; returns it. It is stored
+        once, with the fitted statistics."""
+        self.threshold_ = rule.fit(self.decision_scores_)
         self.stats_["threshold"] = np.array(self.threshold_)
+        return self.threshold_
 
     def score(
         self, X: Any, context: Mapping[str, Any] | None = None, extras: bool = False
@@ -313,17 +321,29 @@ class Detector(ABC):
     @classmethod
     def _from_saved(cls, header: dict[str, Any], path: Path) -> Detector:
         """The detector saved in the model folder ``path`` whose checked header is ``header``."""
-        name = header["detector"]
+        return cls.restored(header["detector"], header["config"], header,
+                            model_folder.read_stats(path), model_folder.HEADER,
+                            lambda det: det._load_state(model_folder.read_weights(path)))
+
+    @classmethod
+    def restored(cls, name: str, config: Mapping[str, Any], shape: Mapping[str, Any],
+                 stats: dict[str, NDArray[Any]], where: str,
+                 attach: Callable[[Detector], None]) -> Detector:
+        """A fitted detector rebuilt from a file, the one path for every file that holds one (a
+        model folder, an ONNX export): its ``config`` values, ``n_steps`` and ``n_channels``
+        from ``shape``, the fitted statistics, then ``attach`` gives it its network (the saved
+        weights, an onnxruntime session); checked by :func:`verify_restored`. ``where`` names
+        the part of the file the config came from, in errors."""
         try:
-            config = config_from_dict(cls.Config, header["config"])
+            values = config_from_dict(cls.Config, config)
         except RailwatchError as e:
-            raise RailwatchError(f"{model_folder.HEADER}: the config does not fit {name} "
-                                 f"({e})") from None
-        det = cls(config)
-        det.n_steps_, det.n_channels_ = (positive_count(header, k, model_folder.HEADER)
+            raise RailwatchError(f"{where}: the config does not fit {name} ({e})") from None
+        det = cls(values)
+        det.registry_name = name
+        det.n_steps_, det.n_channels_ = (positive_count(shape, k, where)
                                          for k in ("n_steps", "n_channels"))
-        det.stats_ = model_folder.read_stats(path)
-        det._load_state(model_folder.read_weights(path))
+        det.stats_ = stats
+        attach(det)
         verify_restored(det)
         return det
 

@@ -4,8 +4,10 @@ A deep detector subclasses :class:`TorchDetector` and supplies small hooks (the 
 the raw outputs its scoring uses, the scores from them); the loop owns the device (CUDA when
 present, else the CPU; never hard-coded), seeding without touching the caller's random state,
 mini-batches, the validation split carved from the training set, early stopping and progress.
-The raw outputs come from the torch network, or from an onnxruntime session standing in for it
-(``backend_``, set by :func:`railwatch.deploy.onnx.load_onnx`).
+Scoring reads the raw outputs through a :class:`Network`, a callable from a normalised batch to
+arrays: :class:`TorchNetwork` runs the torch module, and an onnxruntime session
+(:class:`railwatch.deploy.onnx.OnnxNetwork`, loaded by :func:`railwatch.deploy.onnx.load_onnx`)
+implements the same protocol.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import math
 from abc import abstractmethod
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 import torch
@@ -54,6 +56,27 @@ def seeded(seed: int) -> Iterator[None]:
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         yield
+
+
+class Network(Protocol):
+    """What scoring needs of a network: a normalised batch of windows (B, T, C) float32 to its
+    raw outputs, each an array (B, ...)."""
+
+    def __call__(self, batch: NDArray[np.float32]) -> dict[str, NDArray[Any]]: ...
+
+
+class TorchNetwork:
+    """The :class:`Network` of a torch detector: its module on its device, without gradients."""
+
+    def __init__(self, detector: TorchDetector) -> None:
+        self.detector = detector
+
+    @torch.no_grad()
+    def __call__(self, batch: NDArray[np.float32]) -> dict[str, NDArray[Any]]:
+        det = self.detector
+        det.model_.eval()
+        out = det.raw(torch.from_numpy(batch).to(det.device_))
+        return {k: v.float().cpu().numpy() for k, v in out.items()}
 
 
 class TorchDetector(Detector):
@@ -160,24 +183,20 @@ class TorchDetector(Detector):
             count += len(xb)
         return total / max(count, 1)
 
-    #: Set on a detector loaded from ONNX: runs the network instead of ``model_`` (a callable
-    #: from a normalised batch (B, T, C) to the raw outputs as arrays).
-    backend_: Any = None
+    #: The network scoring runs (:class:`Network`); None: the torch module (:class:`TorchNetwork`).
+    #: A detector loaded from ONNX holds an onnxruntime session here.
+    network_: Network | None = None
 
-    @torch.no_grad()
+    def network(self) -> Network:
+        """The network that computes the raw outputs for scoring."""
+        return self.network_ if self.network_ is not None else TorchNetwork(self)
+
     def _raw_all(self, X: FloatArray) -> dict[str, NDArray[Any]]:
         """Raw outputs of all windows, in batches of ``batch_size``."""
-        if self.backend_ is None:
-            self.model_.eval()
+        network = self.network()
         parts: dict[str, list[NDArray[Any]]] = {}
         for i in range(0, len(X), self.config.batch_size):
-            batch = np.ascontiguousarray(X[i:i + self.config.batch_size])
-            if self.backend_ is not None:
-                out = self.backend_(batch)
-            else:
-                out = {k: v.float().cpu().numpy()
-                       for k, v in self.raw(torch.from_numpy(batch).to(self.device_)).items()}
-            for k, v in out.items():
+            for k, v in network(np.ascontiguousarray(X[i:i + self.config.batch_size])).items():
                 parts.setdefault(k, []).append(v)
         return {k: np.concatenate(v) for k, v in parts.items()}
 

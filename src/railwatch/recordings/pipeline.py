@@ -30,6 +30,7 @@ from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Recording
 from railwatch.recordings.stream import Event, StreamingDetector
+from railwatch.scoring.thresholds import GumbelNull, ThresholdRule
 
 EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "threshold",
                 "position_m")
@@ -60,49 +61,29 @@ def training_windows(recordings: Sequence[Recording], prep: Preparation,
     return np.concatenate(out)
 
 
-#: Share of normal windows above the recordings threshold, under the fitted null distribution.
-NULL_TAIL = 0.02
+#: The event threshold of a model trained on recordings (``train --recordings``).
+EVENT_THRESHOLD = GumbelNull(tail=0.02)
 
 
-def null_threshold(instance_scores: NDArray[Any], tail: float = NULL_TAIL) -> float:
-    """An event threshold that does not depend on how many training windows hold defects.
-
-    A window's instance score is the maximum of many per-sample scores, so over normal windows it
-    follows approximately a Gumbel distribution. Its location μ and scale β are fitted to the
-    *lower half* of the training windows' scores (the quartile and the median), which defects,
-    being high scores, leave alone as long as fewer than half the windows hold one; the threshold
-    is the null's ``1 − tail`` quantile. On the synthesised 10-minute runs (one defect per 10 s,
-    a fifth of the windows) the detector's contamination quantile (0.10) put the threshold among
-    the defects (attention model: 47 % found, no false events); this rule: 83 %, 0.4 false per
-    minute (docs/recordings.md).
-
-    >>> rng = np.random.default_rng(0)
-    >>> null = rng.gumbel(0.0, 1.0, 100_000)
-    >>> round(float(null_threshold(null, 0.02)), 1), round(float(np.quantile(null, 0.98)), 1)
-    (3.9, 3.9)
-    """
-    q25, q50 = np.quantile(instance_scores, [0.25, 0.5])
-    g25, g50 = -np.log(-np.log(0.25)), -np.log(-np.log(0.5))  # standard Gumbel quantiles
-    beta = max(float(q50 - q25) / (g50 - g25), 1e-12)
-    mu = float(q50) - beta * g50
-    return float(mu - beta * np.log(-np.log(1.0 - tail)))
-
-
-def recording_info(layout: Layout, prep: Preparation, threshold: float) -> dict[str, str]:
-    """The extra file a recordings model carries (``Detector.save(extra_files=...)``)."""
+def recording_info(layout: Layout, prep: Preparation,
+                   rule: ThresholdRule = EVENT_THRESHOLD) -> dict[str, str]:
+    """The extra file a recordings model carries (``Detector.save(extra_files=...)``): the
+    layout, the preparation and the rule that set the detector's threshold (the value itself is
+    stored once, with the detector's statistics)."""
     info = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
-            "threshold": threshold, "threshold_rule": f"null_threshold(tail={NULL_TAIL})"}
+            "threshold_rule": rule.describe()}
     return {model_folder.RECORDING: json.dumps(info, indent=2)}
 
 
 def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
-                        prep: Preparation, out: str | os.PathLike[str]) -> float:
-    """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set the event
-    threshold by :func:`null_threshold` and save the model folder with ``recording.json``
-    (the layout, the preparation and the threshold); returns the threshold."""
+                        prep: Preparation, out: str | os.PathLike[str],
+                        rule: ThresholdRule = EVENT_THRESHOLD) -> float:
+    """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set its
+    threshold by ``rule`` (:data:`EVENT_THRESHOLD`) and save the model folder with
+    ``recording.json``; returns the threshold."""
     detector.fit(X)
-    threshold = null_threshold(detector.decision_scores_)
-    detector.save(out, extra_files=recording_info(layout, prep, threshold))
+    threshold = detector.set_threshold(rule)
+    detector.save(out, extra_files=recording_info(layout, prep, rule))
     return threshold
 
 
@@ -140,7 +121,8 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
         layout = Layout.from_dict(info["layout"], source)
         prep = _preparation(info["preparation"])
         prep.check(layout.fs)
-        threshold = float(info["threshold"])
+        # Models saved before the threshold was stored once keep their event threshold here.
+        threshold = float(info["threshold"]) if "threshold" in info else detector.threshold_
         if len(layout.channels) != detector.n_channels_:
             raise ValueError(f"its layout names {len(layout.channels)} channels, the model was "
                              f"trained on {detector.n_channels_}")

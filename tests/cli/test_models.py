@@ -10,8 +10,7 @@ import pytest
 
 from railwatch.cli import main
 from railwatch.detectors.registry import REGISTRY
-
-TINY = Path(__file__).parents[1] / "configs" / "tiny"
+from support import TINY
 
 
 @pytest.fixture(scope="module")
