@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -63,6 +63,9 @@ bench-recordings: $(STAMP)  ## detection quality, real-time factor and onboard l
 
 bench-recordings-nuisance: $(STAMP)  ## train on two runs, detect on a third: stage-5/8-like runs, loud stretches
 	$(BIN)/python benchmarks/recordings_nuisance.py --work runs/recordings-nuisance
+
+bench-track-map: $(STAMP)  ## the track map of 10-km tracks against 1, 2, 5, 10 passes; scan throughput (~40 min)
+	$(BIN)/python benchmarks/track_map.py --work runs/bench-track-map
 
 bench-reliability: $(STAMP)  ## the fault and fuzz tests, counted into docs/results/reliability.md
 	$(BIN)/python benchmarks/reliability.py

@@ -20,7 +20,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 #: a detector -> reports -> the benchmark -> the command line.
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("railwatch", "railwatch.errors", "railwatch.atomic", "railwatch.progress",
-     "railwatch.mapping_files", "railwatch.machine"),
+     "railwatch.mapping_files", "railwatch.machine", "railwatch.parallel"),
     ("railwatch.windows", "railwatch.recordings.layout"),  # file formats
     ("railwatch.recordings", "railwatch.recordings.readers",
      "railwatch.recordings.prepare", "railwatch.scoring"),  # recordings; the scoring library
@@ -28,8 +28,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("railwatch.detectors",),
     ("railwatch.evaluation", "railwatch.evaluation.metrics"),
     ("railwatch.deploy",),  # a detector exported to, and loaded from, ONNX
-    ("railwatch.recordings.stream", "railwatch.recordings.pipeline",
-     "railwatch.recordings.simulate"),  # workflows on recordings
+    ("railwatch.recordings.stream", "railwatch.recordings.pipeline", "railwatch.recordings.scan",
+     "railwatch.recordings.track_map"),  # workflows on recordings
     ("railwatch.report",),  # tables, figures, the benchmark's report, the detection plot
     ("railwatch.bench",),
     ("railwatch.cli",),

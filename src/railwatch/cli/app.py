@@ -3,7 +3,8 @@ place that talks to the terminal. Every failure ends in one line on stderr and a
 
 One module per command group: :mod:`~railwatch.cli.data` (generate, generate-run, figure),
 :mod:`~railwatch.cli.models` (detectors, train, score, evaluate, export),
-:mod:`~railwatch.cli.recordings` (detect) and :mod:`~railwatch.cli.bench` (bench).
+:mod:`~railwatch.cli.recordings` (detect), :mod:`~railwatch.cli.tracks` (scan, track-map) and
+:mod:`~railwatch.cli.bench` (bench).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import sys
 import click
 
 from railwatch import __version__
-from railwatch.cli import bench, data, models, recordings
+from railwatch.cli import bench, data, models, recordings, tracks
 from railwatch.errors import RailwatchError, one_line
 
 log = logging.getLogger("railwatch")
@@ -46,7 +47,8 @@ def cli(ctx: click.Context, quiet: bool) -> None:
 
 
 for command in (data.generate, data.generate_run, data.figure, models.list_detectors, models.train,
-                models.score, models.evaluate, models.export, recordings.detect, bench.bench):
+                models.score, models.evaluate, models.export, recordings.detect, tracks.scan,
+                tracks.track_map, bench.bench):
     cli.add_command(command)
 
 

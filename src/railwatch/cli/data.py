@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from railwatch.cli.common import info, writable_file
+from railwatch.errors import RailwatchError
 
 STAGE_TABLE = """\b
   stage  channels  adds
@@ -100,12 +101,34 @@ def figure_stages(out: Path, seed: int) -> None:
                    "8 + wheel-periodic impulses.")
 @click.option("--loud-stretches", is_flag=True,
               help="Rough sections of track (200-1500 m, 4 in 10) with 2-4x the noise.")
-@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
-              help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks).")
+@click.option("--passes", type=click.IntRange(min=1),
+              help="Repeated passes over one track instead of one run: OUT is then a folder.")
+@click.option("--track-km", type=click.FloatRange(min=0, min_open=True), default=10.0,
+              show_default=True, help="With --passes: the track's length.")
+@click.option("--track-defects", type=click.IntRange(min=0), default=40, show_default=True,
+              help="With --passes: defects on the track, at fixed positions.")
+@click.option("--format", "fmt", type=click.Choice(["parquet", "csv", "h5", "mat"]),
+              default="parquet", show_default=True, help="With --passes: the recordings' format.")
+@click.option("--odometry-offset", type=click.FloatRange(min=0), default=1.0, show_default=True,
+              help="With --passes: std (m) of each pass's position offset error.")
+@click.option("--odometry-drift", type=click.FloatRange(min=0), default=0.0005,
+              show_default=True, help="With --passes: std of each pass's relative scale error "
+                                      "(0.0005: 0.5 m per km).")
+@click.option("--odometry-walk", type=click.FloatRange(min=0), default=0.3, show_default=True,
+              help="With --passes: random walk of the position, m per square root of km.")
+@click.option("--odometry-relative", is_flag=True,
+              help="With --passes: positions counted from each pass's start (an odometer "
+                   "alone), not the track's.")
+@click.option("--out", type=click.Path(path_type=Path), required=True,
+              help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks); with "
+                   "--passes a folder.")
 @click.pass_obj
 def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float, stage: int,
-                 loud_stretches: bool, out: Path) -> None:
-    """Synthesise a long six-channel field-rate run with defects at known times and positions.
+                 loud_stretches: bool, passes: int | None, track_km: float, track_defects: int,
+                 fmt: str, odometry_offset: float, odometry_drift: float, odometry_walk: float,
+                 odometry_relative: bool, out: Path) -> None:
+    """Synthesise a long six-channel field-rate run with defects at known times and positions,
+    or repeated passes over one track.
 
     \b
     Writes OUT, OUT's layout (<name>.layout.toml) and the true defects (<name>.defects.csv).
@@ -113,10 +136,32 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
     one every 10 s on average: spikes of +-3-4, local deviations of +-1.5-2 (0.05-0.2 s).
     --stage 7 and 8 add the later stages' nuisance, tied to the track and the wheels;
     --loud-stretches makes the noise level of whole sections of track change.
+    With --passes N: one track with defects at fixed positions and N passes over it (each its
+    own speed, noise, nuisance, start offset and odometry error; odd passes backwards), in
+    OUT/: track.defects.csv (defects by position), layout.toml, passNN.<format> and
+    passNN.defects.csv (when each pass crossed each defect).
     Examples:
       railwatch generate-run --minutes 10 --seed 1 --out train1.parquet
       railwatch generate-run --stage 8 --loud-stretches --seed 4 --out rough.parquet
+      railwatch generate-run --passes 10 --track-km 10 --out runs/track/
     """
+    if passes is not None:
+        from railwatch.progress import Progress
+        from railwatch.synthetic.track import Odometry, write_track
+
+        if out.exists() and not out.is_dir():
+            raise RailwatchError(f"--out {out} is a file: with --passes give a folder")
+        started = time.perf_counter()
+        with Progress(passes, "passes", "passes", enabled=obj["progress"], every_s=0.0) as bar:
+            track, paths = write_track(
+                out, passes, length_m=track_km * 1000, n_defects=track_defects, seed=seed,
+                stage=stage, fs=fs, loud_stretches=loud_stretches,
+                odometry=Odometry(odometry_offset, odometry_drift, odometry_walk,
+                                  odometry_relative),
+                suffix=f".{fmt}", progress=bar.update)
+        info(f"wrote {passes} passes over {track_km:g} km with {len(track.defects)} defects "
+             f"into {out} in {time.perf_counter() - started:.0f} s ({paths[0].name} ...)")
+        return
     from railwatch.synthetic.run_files import check_run_settings, write_run
 
     check_run_settings(out, minutes, every_s, fs)

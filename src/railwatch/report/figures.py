@@ -268,3 +268,30 @@ def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = ""
     ax.legend(loc="upper right", fontsize=7, ncols=4)
     save_figure(fig, Path(path))
     return Path(path)
+
+
+def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: Sequence[Any],
+                     truth_m: NDArray[Any] | None = None) -> Figure:
+    """The track with its locations as bars of confirmation: each location's share of the
+    passes that covered it (bar height), reported ones red, others grey; true defects, where
+    known, as green ticks; the stretch each pass covered below."""
+    fig = Figure(figsize=(13, 4.2), layout="constrained")
+    ax, cov = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    shown = {id(loc) for loc in reported}
+    for loc in locations:
+        colour = "tab:red" if id(loc) in shown else "0.65"
+        ax.vlines(loc.position_m / 1000, 0, loc.share, color=colour, lw=1.6)
+    if truth_m is not None and len(truth_m):
+        ax.plot(np.asarray(truth_m) / 1000, np.full(len(truth_m), -0.04), "^",
+                color="tab:green", ms=5, label="true defect")
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_ylim(-0.08, 1.05)
+    ax.set_ylabel("passes seen / covered")
+    ax.set_title(f"{len(reported)} reported locations (red) of {len(locations)} places with "
+                 f"events, {len(passes)} passes")
+    ax.grid(alpha=0.3)
+    for i, p in enumerate(passes):
+        cov.plot(np.array(p.covered) / 1000, [i, i], lw=3, color="tab:blue")
+    cov.set_yticks(range(len(passes)), [p.name for p in passes], fontsize=6)
+    cov.set_xlabel("track position (km)")
+    return fig

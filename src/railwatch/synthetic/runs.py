@@ -111,29 +111,12 @@ def synthesize_run(
     # Added components draw from their own streams: the stage-5 run stays as it was.
     odds_rng, burst_rng, impulse_rng, stretch_rng = (
         np.random.default_rng([seed, k]) for k in (6, 7, 8, 9))
-    n = int(round(duration_s * fs))
-    t = np.arange(n) / fs
-
-    knots_t = np.arange(0.0, duration_s + 30.0, 30.0)
-    speed = np.interp(t, knots_t, rng.uniform(15.0, 30.0, len(knots_t)))
+    speed, t = speed_profile(rng, duration_s, fs)
     position = np.concatenate([[0.0], np.cumsum(speed[:-1]) / fs])
     scale = speed / MEAN_SPEED
 
     gain = _stretch_gain(stretch_rng, position) if loud_stretches else 1.0
-    travel = _travel(scale, fs)
-    data = np.empty((n, len(CHANNELS)), np.float32)
-    for c, group in enumerate(CHANNEL_GROUPS):
-        g = GROUPS[group]
-        f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
-        phase = phi + 2 * np.pi * f * travel
-        clean = amp * scale * np.sin(phase)
-        noise = _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
-        data[:, c] = clean + gain * noise
-    for c, group in enumerate(CHANNEL_GROUPS):
-        if stage >= 7:
-            data[:, c] += _bursts(burst_rng, GROUPS[group], position, scale, travel)
-        if stage >= 8:
-            data[:, c] += _impulses(impulse_rng, GROUPS[group], t, position, scale, fs)
+    data = render(rng, burst_rng, impulse_rng, t, position, scale, gain, stage, fs)
 
     defects = []
     for at in _defect_times(rng, duration_s, defect_every_s):
@@ -152,6 +135,41 @@ def synthesize_run(
                         "channel": CHANNELS[c], "group": CHANNEL_GROUPS[c],
                         "kind": "spike" if spike else "deviation", "offset": offset})
     return Run(fs=fs, data=data, time=t, speed=speed, position=position, defects=defects)
+
+
+def speed_profile(rng: np.random.Generator, duration_s: float,
+                  fs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The train's speed (m/s) at every sample of ``duration_s`` and the sample times: piecewise
+    linear between knots every 30 s, U[15, 30] m/s."""
+    n = int(round(duration_s * fs))
+    t = np.arange(n) / fs
+    knots_t = np.arange(0.0, duration_s + 30.0, 30.0)
+    return np.interp(t, knots_t, rng.uniform(15.0, 30.0, len(knots_t))), t
+
+
+def render(rng: np.random.Generator, burst_rng: np.random.Generator,
+           impulse_rng: np.random.Generator, t: NDArray[np.float64],
+           position: NDArray[np.float64], scale: NDArray[np.float64],
+           gain: NDArray[np.float64] | float, stage: int, fs: float) -> NDArray[np.float32]:
+    """The six channels of a run without defects (n, 6): sinusoids scaled by speed, white noise
+    of changing level times the track's ``gain``, and from ``stage`` 7 and 8 the bursts and
+    impulses, placed by ``position``, the distance travelled (increasing)."""
+    n = len(t)
+    travel = _travel(scale, fs)
+    data = np.empty((n, len(CHANNELS)), np.float32)
+    for c, group in enumerate(CHANNEL_GROUPS):
+        g = GROUPS[group]
+        f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
+        phase = phi + 2 * np.pi * f * travel
+        clean = amp * scale * np.sin(phase)
+        noise = _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
+        data[:, c] = clean + gain * noise
+    for c, group in enumerate(CHANNEL_GROUPS):
+        if stage >= 7:
+            data[:, c] += _bursts(burst_rng, GROUPS[group], position, scale, travel)
+        if stage >= 8:
+            data[:, c] += _impulses(impulse_rng, GROUPS[group], t, position, scale, fs)
+    return data
 
 
 def _travel(scale: NDArray[np.float64], fs: float) -> NDArray[np.float64]:

@@ -1,0 +1,151 @@
+"""Commands from recordings to a track map: ``scan`` (many recordings, one model, locally or
+on Ray) and ``track-map`` (events of repeated passes -> confirmed locations)."""
+
+from __future__ import annotations
+
+import glob
+from pathlib import Path
+
+import click
+
+from railwatch.cli.common import info, writable_file
+from railwatch.errors import RailwatchError
+
+
+def expand_recordings(items: tuple[str, ...]) -> list[Path]:
+    """Files, folders (every recording in them) and shell globs, in name order."""
+    from railwatch.recordings.readers import FORMATS
+
+    found: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found += sorted(p for p in path.iterdir() if p.suffix.lower() in FORMATS)
+        elif any(ch in item for ch in "*?["):
+            matches = sorted(Path(p) for p in glob.glob(item))
+            if not matches:
+                raise RailwatchError(f"no recording matches {item}")
+            found += matches
+        else:
+            found.append(path)
+    return found
+
+
+@click.command(epilog="""\b
+OUT gets, per recording NAME: NAME.events.csv and NAME.scan.json (what was scanned, the
+stretch of track covered); and events.csv, every event with its recording. A recording scanned
+before by the same model (same file, same threshold) is not scanned again: kill a scan and
+start it again, and it goes on where it stopped.""")
+@click.option("--model", type=click.Path(path_type=Path), required=True,
+              help="Model folder written by 'railwatch train --recordings' (or its .onnx).")
+@click.option("--recordings", "recordings", multiple=True, required=True, metavar="PATH...",
+              help="Recordings: files, folders or globs (quote globs for Ray on a cluster).")
+@click.argument("more_recordings", nargs=-1)
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False), required=True,
+              help="Scan folder (created; finished recordings in it are kept).")
+@click.option("--layout", "layout_file", type=click.Path(path_type=Path),
+              help="Layout of these recordings if their columns differ from the training layout.")
+@click.option("--threshold", type=float,
+              help="Event threshold instead of the model's (lower finds more; a map of "
+                   "repeated passes filters what does not repeat).")
+@click.option("--executor", type=click.Choice(["local", "ray"]), default="local",
+              show_default=True, help="Scan in this process, or each recording as a Ray task.")
+@click.option("--address", help="Ray cluster address (with --executor ray); default: start a "
+                                 "local Ray on this machine.")
+def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, ...], out: Path,
+         layout_file: Path | None, threshold: float | None, executor: str,
+         address: str | None) -> None:
+    """Scan many recordings for defects with one model: events per recording and combined.
+
+    \b
+    Example:
+      railwatch scan --model model/ --recordings runs/track/pass*.parquet --out scan/
+      railwatch scan --model model/ --recordings runs/ --out scan/ --executor ray
+    """
+    from railwatch.progress import Progress
+    from railwatch.recordings.layout import load_layout
+    from railwatch.recordings.scan import scan as scan_recordings
+
+    if address and executor != "ray":
+        raise RailwatchError("--address goes with --executor ray")
+    paths = expand_recordings(recordings + more_recordings)
+    layout = load_layout(layout_file) if layout_file else None
+    ctx = click.get_current_context()
+    bar = Progress(len(paths), "scan", "recordings", every_s=0.0,
+                   enabled=(ctx.find_root().obj or {}).get("progress", True))
+
+    def done(name: str, events: int | None) -> None:
+        if events is not None:
+            bar.set_postfix_str(f"{name}: {events} events")
+        bar.update(1, timed=events is not None)
+
+    with bar:
+        summary = scan_recordings(model, paths, out, layout=layout, threshold=threshold,
+                                  executor=executor, address=address, on_recording=done)
+    rate = summary.recording_s / 3600 / max(summary.wall_s / 3600, 1e-9)
+    info(f"{len(paths)} recordings ({summary.reused} scanned before), {summary.events} events; "
+         f"{summary.wall_s:.1f} s" + (f", {rate:.0f} recording-hours per hour"
+                                      if summary.scanned == len(paths) else "")
+         + f"; wrote {out / 'events.csv'}")
+
+
+@click.command("track-map", epilog="""\b
+MAP.csv: one row per location, most confident first: rank, position_m (the map's frame: the
+mean of the passes' odometry), start_m, end_m, passes_seen, passes_covered, share, confidence
+(95 % lower bound of the share), median_score, channel, group, kind_guess (spike-like or
+deviation-like, from the events' duration), first_seen, last_seen (recording names).""")
+@click.option("--events", "events_dir", type=click.Path(path_type=Path), required=True,
+              help="Scan folder written by 'railwatch scan' (events and the track covered).")
+@click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
+              help="Map to write (.csv).")
+@click.option("--plot", type=click.Path(path_type=Path, dir_okay=False),
+              help="Also draw the track with the locations as bars of confirmation (PNG).")
+@click.option("--tolerance-m", type=click.FloatRange(min=0, min_open=True), default=2.0,
+              show_default=True, help="Events of different passes closer than this are one place.")
+@click.option("--max-offset-m", type=click.FloatRange(min=0), default=50.0, show_default=True,
+              help="Largest offset between two passes' positions; 0: any (positions counted "
+                   "from each pass's start).")
+@click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
+              help="Report a location seen on at least this share of the passes that covered it "
+                   "(and on 2 passes where 2 or more covered it).")
+@click.option("--truth", type=click.Path(path_type=Path),
+              help="True defects by position (a position_m column, e.g. the track.defects.csv of "
+                   "'generate-run --passes'): recall and false locations per km.")
+def track_map(events_dir: Path, out: Path, plot: Path | None, tolerance_m: float,
+              max_offset_m: float, min_share: float, truth: Path | None) -> None:
+    """Turn the events of repeated passes over one line into ranked locations on the track.
+
+    \b
+    Passes are aligned (each pass's odometry offset and drift, from the events that repeat),
+    events clustered by position, and each place ranked by how many of the passes that
+    covered it saw something there: a defect repeats, a false event does not.
+    Example:
+      railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
+    """
+    from railwatch.recordings import track_map as tm
+
+    if out.suffix.lower() != ".csv":
+        raise RailwatchError(f"--out {out.name}: write the map to a .csv file")
+    writable_file(out)
+    if plot is not None:
+        writable_file(plot)
+    passes = tm.read_scan(events_dir)
+    truth_m = tm.read_truth(truth) if truth else None
+    locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
+    reported = tm.reported(locations, min_share, len(passes))
+    tm.write_map(out, locations)
+    if plot is not None:
+        from railwatch.report.figures import save_figure, track_map_figure
+
+        save_figure(track_map_figure(locations, passes, reported, truth_m), plot)
+    line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
+            f"{len(locations)} locations, {len(reported)} reported (seen on >= "
+            f"{min_share:g} of the passes that covered them)")
+    if truth_m is not None:
+        lo, hi = tm.covered_range(passes)
+        covered = truth_m[(truth_m >= lo) & (truth_m <= hi)]
+        s = tm.score_locations(reported, covered, hi - lo, tolerance_m)
+        line += (f"; against the {len(covered)} defects of {truth.name} on the covered "
+                 f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "
+                 f"±{tolerance_m:g} m, {s['false_per_km']:.2f} false locations per km")
+    info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))

@@ -1,0 +1,168 @@
+"""Scan many recordings with one model: each recording's events and one combined table, in this
+process or as Ray tasks, resumable (a recording scanned by the same model is not scanned again).
+
+For every recording ``NAME.EXT`` the scan folder gets ``NAME.events.csv`` (the events of
+``railwatch detect``) and then ``NAME.scan.json`` (the recording, the model, the stretch of track
+it covered, when): written last, it marks the recording done. ``events.csv`` combines them all
+with a ``recording`` column. Only the driver writes; a Ray task reads its recording and returns
+its events.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import io
+import json
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from railwatch.atomic import atomic_path, sha256_file
+from railwatch.detectors import model_folder
+from railwatch.errors import RailwatchError
+from railwatch.recordings import pipeline
+from railwatch.recordings.layout import Layout
+from railwatch.recordings.readers import Recording
+from railwatch.recordings.track_map import EVENTS_SUFFIX, SCAN_SUFFIX
+
+#: Ray's memory resource asked per recording task: what one streaming scan needs with room.
+TASK_MEMORY = 2 * 1024**3
+COMBINED = "events.csv"
+
+
+@dataclass(frozen=True)
+class ScanSummary:
+    scanned: int  # recordings scanned now
+    reused: int  # found finished in the folder
+    events: int  # in the combined table
+    recording_s: float  # seconds of recording in the folder's table
+    wall_s: float
+
+
+def model_id(model: str | os.PathLike[str]) -> str:
+    """What identifies a model across runs: the SHA-256 of its header (which holds the checksums
+    of its other files) or of its ONNX file."""
+    path = Path(model)
+    return sha256_file(path if path.is_file() else path / model_folder.HEADER)[:16]
+
+
+def _signature(path: Path) -> dict[str, int]:
+    stat = path.stat()
+    return {"bytes": stat.st_size, "mtime_ns": stat.st_mtime_ns}
+
+
+def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[str]],
+         out: str | os.PathLike[str], layout: Layout | None = None,
+         threshold: float | None = None, executor: str = "local", address: str | None = None,
+         on_recording: Callable[[str, int | None], None] | None = None) -> ScanSummary:
+    """Scan every recording into ``out`` (module docstring); returns what was done.
+
+    Everything is checked before any scan: the model, every recording's format and columns
+    against the layout (the model's unless ``layout`` is given), names that would collide.
+    ``on_recording(name, n_events)`` is called as each finishes (``None``: found finished).
+    """
+    started = time.perf_counter()
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise RailwatchError(f"--out {out} is a file: give a folder for the scan")
+    rm = pipeline.load_recording_model(model)
+    layout = layout or rm.layout
+    paths = [Path(p) for p in recordings]
+    if not paths:
+        raise RailwatchError("no recordings to scan: give files, folders or globs")
+    names = [p.stem for p in paths]
+    twins = sorted({n for n in names if names.count(n) > 1})
+    if twins:
+        raise RailwatchError(f"two recordings are named {twins[0]} (in different folders): "
+                             "their events would share a file; rename one")
+    if len(layout.channels) != rm.detector.n_channels_:
+        raise RailwatchError(f"the layout names {len(layout.channels)} channels, the model was "
+                             f"trained on {rm.detector.n_channels_}")
+    for p in paths:  # every file's format and columns, before any work
+        Recording(p, layout)
+    out.mkdir(parents=True, exist_ok=True)
+    ident = model_id(model)
+    todo = [p for p in paths if not _done(out, p, ident, threshold)]
+    for p in paths:
+        if p not in todo and on_recording is not None:
+            on_recording(p.stem, None)
+    args = (str(model), layout.to_dict(), threshold)
+    if executor == "local":
+        results = ((p, _scan_one(p, *args, detector=rm)) for p in todo)
+    elif executor == "ray":
+        from railwatch.parallel import ray_imap
+
+        results = ray_imap(_scan_one, todo, args, address=address, memory_bytes=TASK_MEMORY)
+    else:
+        raise RailwatchError(f"unknown executor {executor!r}: use local or ray")
+    for path, (events_text, info) in results:
+        name = path.stem
+        with atomic_path(out / f"{name}{EVENTS_SUFFIX}") as tmp:
+            tmp.write_text(events_text)
+        info.update(model=ident, model_path=str(model), signature=_signature(path),
+                    threshold_given=threshold,
+                    scanned=datetime.datetime.now().isoformat(timespec="seconds"))
+        with atomic_path(out / f"{name}{SCAN_SUFFIX}") as tmp:  # last: marks it done
+            tmp.write_text(json.dumps(info, indent=1))
+        if on_recording is not None:
+            on_recording(name, int(info["events"]))
+    n_events, seconds = _combine(out, [p.stem for p in paths])
+    return ScanSummary(scanned=len(todo), reused=len(paths) - len(todo), events=n_events,
+                       recording_s=seconds, wall_s=time.perf_counter() - started)
+
+
+def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
+    """Scanned before by this model, with this threshold, from this very file."""
+    info_path = out / f"{path.stem}{SCAN_SUFFIX}"
+    if not info_path.is_file() or not (out / f"{path.stem}{EVENTS_SUFFIX}").is_file():
+        return False
+    try:
+        info = json.loads(info_path.read_text())
+        return bool(info.get("model") == ident and info.get("threshold_given") == threshold
+                    and info.get("signature") == _signature(path))
+    except (OSError, ValueError):
+        return False
+
+
+def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float | None,
+              detector: pipeline.RecordingModel | None = None) -> tuple[str, dict[str, Any]]:
+    """Detect on one recording: (its events as CSV text, what the scan records of it)."""
+    rm = detector or pipeline.load_recording_model(model)
+    lay = Layout.from_dict(layout, "the scan's layout")
+    rec = Recording(path, lay)
+    started = time.perf_counter()
+    result = pipeline.detect(rm.detector, rec, rm.preparation,
+                             rm.threshold if threshold is None else threshold)
+    position = np.asarray(result.trace.position, dtype=float)
+    finite = position[np.isfinite(position)]
+    info = {
+        "recording": str(path), "duration_s": rec.duration_s, "events": len(result.events),
+        "threshold": result.threshold, "detect_s": time.perf_counter() - started,
+        "position_first_m": float(finite[0]) if len(finite) else None,
+        "position_last_m": float(finite[-1]) if len(finite) else None,
+    }
+    return pipeline.events_text(result.events, "csv"), info
+
+
+def _combine(out: Path, names: list[str]) -> tuple[int, float]:
+    """``events.csv``: every scanned recording's events, a ``recording`` column first."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["recording", *pipeline.EVENT_FIELDS])
+    count, seconds = 0, 0.0
+    for name in sorted(set(names)):
+        info = json.loads((out / f"{name}{SCAN_SUFFIX}").read_text())
+        seconds += float(info["duration_s"])
+        with open(out / f"{name}{EVENTS_SUFFIX}", newline="") as fh:
+            for row in csv.DictReader(fh):
+                writer.writerow([name, *(row[k] for k in pipeline.EVENT_FIELDS)])
+                count += 1
+    with atomic_path(out / COMBINED) as tmp:
+        tmp.write_text(buf.getvalue())
+    return count, seconds

@@ -1,0 +1,376 @@
+"""From repeated passes to a track map: events aligned across passes, clustered by position,
+ranked by how many of the passes that covered a place saw something there.
+
+A real defect shows up at the same track position on pass after pass (at different speeds and
+noise levels); a false event does not. The map turns the events of many recordings of one line
+(``railwatch scan``) into locations:
+
+1. **Alignment.** Each pass's recorded positions carry their own odometry error (an offset, a
+   scale error, a slow walk), and may count along the track either way (an odometer counting
+   from the pass's own start). The pass with the most events is the reference; every other
+   pass gets the linear map ``x ↦ a + b·x`` that lays its events onto the reference's: the
+   direction (``b`` near +1 or −1) and offset from the densest difference between its events
+   and the reference's (within ``search_m``, or any), then a least-squares fit on the events
+   that match within the tolerance (``|b|`` held to 1 ± 2 %); a pass is moved only when the
+   move makes at least 3 of its events, and 2 more than as recorded, repeat. Passes are then
+   refitted against the places seen on at least two passes, so no single pass's error is the
+   frame. Where every
+   pass records track positions (all ``b`` > 0), the map's frame is the mean of the passes'
+   frames; otherwise it is the reference pass's.
+2. **Clustering.** Aligned events closer than ``tolerance_m`` are one location (single linkage:
+   the connected groups of the "closer than" graph).
+3. **Per location:** position (median), extent, passes seen, passes that covered it (their
+   aligned position range), the share, a confidence (the 95 % Wilson lower bound of seen /
+   covered, so 9 of 10 ranks above 1 of 1 and above 1 of 10), median score, dominant channel and
+   group, a kind guess from the events' duration, first and last recording seen.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections import Counter
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from railwatch.atomic import atomic_path
+from railwatch.errors import RailwatchError
+
+#: What a scan writes per recording beside its events (``<name>.scan.json``).
+SCAN_SUFFIX = ".scan.json"
+EVENTS_SUFFIX = ".events.csv"
+#: Columns of the map (one row per location, most confident first).
+MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "passes_seen", "passes_covered",
+              "share", "confidence", "median_score", "channel", "group", "kind_guess",
+              "first_seen", "last_seen")
+#: Events up to this long (s) look like a spike, longer ones like a local deviation.
+SPIKE_LIKE_S = 0.04
+MAX_SCALE_ERROR = 0.02
+#: A pass is moved only when at least this many of its events (and two more than as recorded)
+#: repeat on the reference after the move.
+MIN_VOTES = 3
+
+
+@dataclass
+class PassEvents:
+    """One recording's events and the stretch of track it covered (recorded positions)."""
+
+    name: str
+    position: NDArray[np.float64]  # (n,) event peak positions, m
+    score: NDArray[np.float64]  # (n,)
+    duration_s: NDArray[np.float64]  # (n,)
+    channel: list[str]
+    group: list[str]
+    covered: tuple[float, float]  # recorded position range of the recording, m
+
+
+@dataclass(frozen=True)
+class Location:
+    rank: int
+    position_m: float
+    start_m: float
+    end_m: float
+    passes_seen: int
+    passes_covered: int
+    share: float
+    confidence: float
+    median_score: float
+    channel: str
+    group: str
+    kind_guess: str
+    first_seen: str
+    last_seen: str
+
+
+# ----------------------------------------------------------------------------- reading
+def read_scan(folder: str | os.PathLike[str]) -> list[PassEvents]:
+    """Every recording of a scan folder (``railwatch scan --out``), in name order."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RailwatchError(f"--events {folder}: not a folder (give the --out of "
+                             "'railwatch scan')")
+    infos = sorted(folder.glob(f"*{SCAN_SUFFIX}"))
+    if not infos:
+        raise RailwatchError(f"{folder} holds no scanned recordings (*{SCAN_SUFFIX}): give the "
+                             "--out folder of 'railwatch scan'")
+    return [_read_pass(p) for p in infos]
+
+
+def _read_pass(info_path: Path) -> PassEvents:
+    name = info_path.name[: -len(SCAN_SUFFIX)]
+    events_path = info_path.with_name(name + EVENTS_SUFFIX)
+    try:
+        info = json.loads(info_path.read_text())
+        lo, hi = info["position_first_m"], info["position_last_m"]
+    except (OSError, ValueError, KeyError) as e:
+        raise RailwatchError(f"{info_path} is damaged ({e}): scan the recording again") from None
+    if lo is None or hi is None:
+        raise RailwatchError(f"{name} has no track position (its layout names no position or "
+                             "speed column): a map needs positions")
+    try:
+        with open(events_path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            missing = {"position_m", "score", "start_s", "end_s", "channel", "group"} - set(
+                reader.fieldnames or [])
+            if missing:
+                raise RailwatchError(f"{events_path} has no {', '.join(sorted(missing))} "
+                                     "column(s): it is not an events file of 'railwatch scan'")
+            rows = list(reader)
+        position = np.array([float(r["position_m"]) for r in rows], dtype=float)
+        score = np.array([float(r["score"]) for r in rows], dtype=float)
+        duration = np.array([float(r["end_s"]) - float(r["start_s"]) for r in rows],
+                            dtype=float)
+    except OSError as e:
+        raise RailwatchError(f"cannot read {events_path}: {e}") from None
+    except ValueError:
+        raise RailwatchError(f"{events_path}: position_m, score, start_s and end_s must be "
+                             "numbers (an event without a position cannot be mapped)") from None
+    return PassEvents(name=name, position=position, score=score, duration_s=duration,
+                      channel=[r["channel"] for r in rows], group=[r["group"] for r in rows],
+                      covered=(min(lo, hi), max(lo, hi)))
+
+
+# ----------------------------------------------------------------------------- alignment
+def _offset(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
+            search: float | None) -> tuple[float, int] | None:
+    """The shift ``d`` that lays most of ``x + d`` within ``tolerance`` of ``ref``, and how many
+    pairs agree on it (the densest window of width 2·tolerance among the pairwise differences,
+    within ``search`` of 0 when given)."""
+    if not len(x) or not len(ref):
+        return None
+    diff = (ref[None, :] - x[:, None]).ravel()
+    if search is not None:
+        diff = diff[np.abs(diff) <= search]
+    diff = np.sort(diff)
+    if not len(diff):
+        return None
+    right = np.searchsorted(diff, diff + 2 * tolerance, side="right")
+    best = int(np.argmax(right - np.arange(len(diff))))
+    votes = int(right[best] - best)
+    if votes < 2:
+        return None
+    return float(np.median(diff[best:right[best]])), votes
+
+
+def _nearest(x: NDArray[np.float64], ref: NDArray[np.float64]) -> NDArray[np.float64]:
+    """For each ``x``, the nearest value of the sorted ``ref``."""
+    i = np.clip(np.searchsorted(ref, x), 1, len(ref) - 1)
+    left, right = ref[i - 1], ref[i]
+    return np.where(np.abs(x - left) <= np.abs(right - x), left, right)
+
+
+def fit_transform(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
+                  search: float | None) -> tuple[float, float]:
+    """``(a, b)`` with ``a + b·x`` laid onto the reference positions ``ref``: ``b`` near +1, or
+    near −1 for positions counted the other way along the track (odometry that counts from the
+    pass's own start), whichever lays more events within ``tolerance``; ``(0, 1)`` if nothing
+    repeats."""
+    ref = np.sort(ref)
+    if len(ref) < 2 or not len(x):
+        return 0.0, 1.0
+    tries = [(sign, _offset(sign * x, ref, tolerance, search)) for sign in (1.0, -1.0)]
+    tries = [(sign, found) for sign, found in tries if found is not None]
+    # As recorded, how many events already repeat: a shift must beat that clearly.
+    as_is = int((np.abs(_nearest(x, ref) - x) <= tolerance).sum())
+    if not tries or max(t[1][1] for t in tries) < max(MIN_VOTES, as_is + 2):
+        return 0.0, 1.0
+    sign, (a, _) = max(tries, key=lambda t: t[1][1])
+    b = sign
+    for _ in range(3):
+        y = a + b * x
+        near = _nearest(y, ref)
+        ok = np.abs(near - y) <= tolerance
+        if ok.sum() < 3 or np.ptp(x[ok]) < 100.0:  # too few, or too close, for a scale
+            if ok.any():
+                a = float(np.median(near[ok] - b * x[ok]))
+            return a, b
+        b_fit, a_fit = np.polyfit(x[ok], near[ok], 1)
+        b = float(np.clip(b_fit, sign - MAX_SCALE_ERROR, sign + MAX_SCALE_ERROR))
+        a = float(a_fit) if b == b_fit else float(np.median(near[ok] - b * x[ok]))
+    return a, b
+
+
+def align(passes: list[PassEvents], tolerance_m: float = 2.0,
+          search_m: float | None = 50.0) -> list[tuple[float, float]]:
+    """Per pass ``(a, b)``: ``a + b·position`` is the position in the map's frame.
+
+    ``search_m`` bounds the offset between two passes' positions (None: any offset, for
+    positions that are not the track's, such as a distance counted from each pass's start).
+    """
+    if not passes:
+        return []
+    ref = max(range(len(passes)), key=lambda i: len(passes[i].position))
+    transforms = [(0.0, 1.0)] * len(passes)
+    for i, p in enumerate(passes):
+        if i != ref:
+            transforms[i] = fit_transform(p.position, passes[ref].position, tolerance_m,
+                                          search_m)
+    for _ in range(2):  # against the places seen on >= 2 passes, not one pass's frame
+        labels, xs, owners = _cluster_all(passes, transforms, tolerance_m)
+        centres = np.array([np.median(xs[labels == k]) for k in np.unique(labels)
+                            if len(set(owners[labels == k])) >= 2])
+        if len(centres) < 2:
+            break
+        transforms = [_refit(p.position, t, centres, tolerance_m)
+                      for p, t in zip(passes, transforms, strict=True)]
+    if all(b > 0 for _, b in transforms):
+        # Track positions in every pass: the map's frame is the mean of the passes' frames
+        # (no pass is the truth). Otherwise it stays the reference pass's.
+        a_mean = float(np.mean([a for a, _ in transforms]))
+        b_mean = float(np.mean([b for _, b in transforms]))
+        transforms = [((a - a_mean) / b_mean, b / b_mean) for a, b in transforms]
+    return transforms
+
+
+def _refit(x: NDArray[np.float64], start: tuple[float, float], centres: NDArray[np.float64],
+           tolerance: float) -> tuple[float, float]:
+    """``start`` refined against the map's places: a least-squares line through the events
+    within ``tolerance`` of one (its slope within 2 % of the start's)."""
+    a, b = start
+    if not len(x):
+        return a, b
+    centres = np.sort(centres)
+    for _ in range(2):
+        y = a + b * x
+        near = _nearest(y, centres)
+        ok = np.abs(near - y) <= tolerance
+        if ok.sum() < 3 or np.ptp(x[ok]) < 100.0:
+            if ok.any():
+                a = float(np.median(near[ok] - b * x[ok]))
+            return a, b
+        b_fit, a_fit = np.polyfit(x[ok], near[ok], 1)
+        sign = 1.0 if start[1] > 0 else -1.0
+        b_new = float(np.clip(b_fit, sign - MAX_SCALE_ERROR, sign + MAX_SCALE_ERROR))
+        a = float(a_fit) if b_new == b_fit else float(np.median(near[ok] - b_new * x[ok]))
+        b = b_new
+    return a, b
+
+
+# ----------------------------------------------------------------------------- clustering
+def single_linkage(x: NDArray[np.float64], tolerance: float) -> NDArray[np.int64]:
+    """Cluster labels of 1-D points: connected groups of the graph |xi − xj| <= tolerance
+    (sorted, a gap above ``tolerance`` starts a new group); labels in order of position."""
+    order = np.argsort(x, kind="stable")
+    gaps = np.diff(x[order]) > tolerance
+    labels = np.empty(len(x), dtype=np.int64)
+    labels[order] = np.concatenate([[0], np.cumsum(gaps)]) if len(x) else []
+    return labels
+
+
+def _cluster_all(passes: list[PassEvents], transforms: list[tuple[float, float]],
+                 tolerance: float) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                                            NDArray[np.int64]]:
+    xs = np.concatenate([a + b * p.position for p, (a, b) in zip(passes, transforms,
+                                                                   strict=True)]) \
+        if passes else np.zeros(0)
+    owners = np.concatenate([np.full(len(p.position), i) for i, p in enumerate(passes)]) \
+        if passes else np.zeros(0, dtype=np.int64)
+    return single_linkage(xs, tolerance), xs, owners
+
+
+def wilson_lower(seen: int, covered: int, z: float = 1.96) -> float:
+    """The 95 % Wilson lower bound of the share ``seen / covered``."""
+    if covered <= 0:
+        return 0.0
+    p = seen / covered
+    denom = 1 + z * z / covered
+    centre = p + z * z / (2 * covered)
+    spread = z * math.sqrt(p * (1 - p) / covered + z * z / (4 * covered * covered))
+    return max(0.0, (centre - spread) / denom)
+
+
+def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
+              search_m: float | None = 50.0) -> list[Location]:
+    """The locations of the events of ``passes`` (module docstring), most confident first."""
+    if tolerance_m <= 0:
+        raise RailwatchError(f"--tolerance-m must be positive, got {tolerance_m:g}")
+    transforms = align(passes, tolerance_m, search_m)
+    labels, xs, owners = _cluster_all(passes, transforms, tolerance_m)
+    if not len(xs):
+        return []
+    scores = np.concatenate([p.score for p in passes])
+    durations = np.concatenate([p.duration_s for p in passes])
+    channels = [c for p in passes for c in p.channel]
+    groups = [g for p in passes for g in p.group]
+    spans = [sorted((a + b * p.covered[0], a + b * p.covered[1]))
+             for p, (a, b) in zip(passes, transforms, strict=True)]
+    found = []
+    for k in np.unique(labels):
+        idx = np.flatnonzero(labels == k)
+        at = float(np.median(xs[idx]))
+        seen_by = sorted(set(owners[idx].tolist()))
+        covered = sum(lo - tolerance_m <= at <= hi + tolerance_m for lo, hi in spans)
+        covered = max(covered, len(seen_by))
+        channel = Counter(channels[i] for i in idx).most_common(1)[0][0]
+        group = Counter(groups[i] for i in idx).most_common(1)[0][0]
+        found.append(dict(
+            position_m=at, start_m=float(xs[idx].min()), end_m=float(xs[idx].max()),
+            passes_seen=len(seen_by), passes_covered=int(covered),
+            share=len(seen_by) / covered, confidence=wilson_lower(len(seen_by), covered),
+            median_score=float(np.median(scores[idx])), channel=channel, group=group,
+            kind_guess="spike-like" if np.median(durations[idx]) <= SPIKE_LIKE_S
+            else "deviation-like",
+            first_seen=passes[seen_by[0]].name, last_seen=passes[seen_by[-1]].name))
+    found.sort(key=lambda r: (-r["confidence"], -r["median_score"], r["position_m"]))
+    return [Location(rank=i + 1, **r) for i, r in enumerate(found)]
+
+
+# ----------------------------------------------------------------------------- outputs
+def write_map(path: str | os.PathLike[str], locations: list[Location]) -> Path:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=MAP_FIELDS, lineterminator="\n")
+        writer.writeheader()
+        for loc in locations:
+            row: dict[str, Any] = asdict(loc)
+            writer.writerow({k: f"{v:.4f}" if isinstance(v, float) else v
+                             for k, v in row.items()})
+    return Path(path)
+
+
+def read_truth(path: str | os.PathLike[str]) -> NDArray[np.float64]:
+    """True defect positions (a ``position_m`` column: a track's defects table)."""
+    path = Path(path)
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            if "position_m" not in (reader.fieldnames or []):
+                raise RailwatchError(f"{path} needs a position_m column of defect positions")
+            return np.array([float(r["position_m"]) for r in reader], dtype=float)
+    except OSError as e:
+        raise RailwatchError(f"cannot read {path}: {e}") from None
+    except ValueError:
+        raise RailwatchError(f"{path}: position_m must hold numbers of metres") from None
+
+
+def reported(locations: list[Location], min_share: float = 0.3,
+             n_passes: int = 2) -> list[Location]:
+    """The locations a map of ``n_passes`` reports: seen on at least ``min_share`` of the passes
+    that covered them, and, with two passes or more, on two of them (one pass confirms
+    nothing)."""
+    return [loc for loc in locations if loc.share >= min_share
+            and (loc.passes_seen >= 2 or n_passes < 2)]
+
+
+def covered_range(passes: list[PassEvents]) -> tuple[float, float]:
+    """The stretch of track the passes covered: the lowest and highest recorded position."""
+    if not passes:
+        return 0.0, 0.0
+    return min(p.covered[0] for p in passes), max(p.covered[1] for p in passes)
+
+
+def score_locations(locations: list[Location], truth_m: NDArray[np.float64], length_m: float,
+                    tolerance_m: float = 2.0) -> dict[str, float]:
+    """Recall of the true positions within ``tolerance_m`` by ``locations``, and the locations
+    near no true defect per km of ``length_m``."""
+    at = np.array([loc.position_m for loc in locations], dtype=float)
+    truth_m = np.asarray(truth_m, dtype=float)
+    hit = [bool(len(at)) and bool(np.any(np.abs(at - t) <= tolerance_m)) for t in truth_m]
+    false = sum(not (len(truth_m) and np.any(np.abs(truth_m - x) <= tolerance_m)) for x in at)
+    return {"recall": float(np.mean(hit)) if len(truth_m) else math.nan,
+            "false_per_km": false / max(length_m / 1000.0, 1e-9), "locations": float(len(at))}

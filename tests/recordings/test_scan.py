@@ -1,0 +1,111 @@
+"""Scanning many recordings: the same events locally and on Ray, resumable, one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from railwatch.cli import main
+from railwatch.detectors import create
+from railwatch.errors import RailwatchError
+from railwatch.recordings import pipeline
+from railwatch.recordings.layout import load_layout
+from railwatch.recordings.prepare import Preparation
+from railwatch.recordings.readers import Recording
+from railwatch.recordings.scan import scan
+from railwatch.synthetic.track import write_track
+from support import tiny_config
+
+
+@pytest.fixture(scope="module")
+def track(tmp_path_factory):  # type: ignore[no-untyped-def]
+    folder = tmp_path_factory.mktemp("track")
+    _, paths = write_track(folder, 4, length_m=1500, n_defects=8, seed=2, fs=200.0)
+    layout = load_layout(folder / "layout.toml")
+    prep = Preparation()
+    X = pipeline.training_windows([Recording(paths[0], layout)], prep)
+    det = create("matched-filter", tiny_config("matched-filter"))
+    pipeline.fit_recording_model(det, X, layout, prep, folder / "model")
+    return folder, paths
+
+
+def events(out: Path) -> list[dict[str, str]]:
+    with open(out / "events.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # type: ignore[no-untyped-def]
+    folder, paths = track
+    out = folder / "scan-local"
+    summary = scan(folder / "model", paths, out)
+    assert (summary.scanned, summary.reused) == (4, 0)
+    rows = events(out)
+    assert len(rows) == summary.events > 0
+    assert {r["recording"] for r in rows} <= {p.stem for p in paths}
+    for p in paths:
+        info = json.loads((out / f"{p.stem}.scan.json").read_text())
+        assert info["events"] == sum(r["recording"] == p.stem for r in rows)
+        assert info["position_first_m"] is not None
+    again = scan(folder / "model", paths, out)
+    assert (again.scanned, again.reused, again.events) == (0, 4, summary.events)
+
+
+@pytest.mark.slow
+def test_ray_gives_the_same_events_as_local(track) -> None:  # type: ignore[no-untyped-def]
+    folder, paths = track
+    local = folder / "scan-local-ray-ref"
+    scan(folder / "model", paths, local)
+    on_ray = folder / "scan-ray"
+    summary = scan(folder / "model", paths, on_ray, executor="ray")
+    assert summary.scanned == 4
+    # Same events, same order; scores equal to float32 print precision (one thread each).
+    assert events(on_ray) == events(local)
+
+
+@pytest.mark.slow
+def test_a_killed_scan_skips_finished_recordings(track) -> None:  # type: ignore[no-untyped-def]
+    folder, paths = track
+    out = folder / "scan-killed"
+    proc = subprocess.Popen([sys.executable, "-m", "railwatch.cli", "-q", "scan", "--model",
+                             str(folder / "model"), "--recordings", *map(str, paths), "--out",
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while not list(out.glob("*.scan.json")) and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = {p: p.stat().st_mtime_ns for p in out.glob("*.scan.json")}
+    assert 1 <= len(finished) < 4, "killed too late to test anything"
+    summary = scan(folder / "model", paths, out)
+    assert summary.reused == len(finished) and summary.scanned == 4 - len(finished)
+    assert {p: p.stat().st_mtime_ns for p in finished} == finished
+    reference = folder / "scan-whole"
+    scan(folder / "model", paths, reference)
+    assert events(out) == events(reference)
+
+
+def test_bad_input_is_one_line(track, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    folder, paths = track
+    other = tmp_path / "other.layout.toml"
+    text = (folder / "layout.toml").read_text().replace('"axle_1" = "axle"', '"wheel" = "axle"')
+    other.write_text(text)
+    code = main(["-q", "scan", "--model", str(folder / "model"), "--recordings", str(paths[0]),
+                 "--layout", str(other), "--out", str(tmp_path / "s")])
+    err = capsys.readouterr().err
+    assert code == 1 and err.startswith("railwatch: error: ") and err.count("\n") == 1, err
+    assert not (tmp_path / "s").exists()  # checked before any work
+    with pytest.raises(RailwatchError, match="no recording matches"):
+        from railwatch.cli.tracks import expand_recordings
+
+        expand_recordings((str(tmp_path / "nothing*.parquet"),))
+    code = main(["-q", "track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv")])
+    err = capsys.readouterr().err
+    assert code == 1 and "holds no scanned recordings" in err and err.count("\n") == 1

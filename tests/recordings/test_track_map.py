@@ -1,0 +1,129 @@
+"""The track map: alignment of passes, clustering, ranking, reading a scan folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from railwatch.errors import RailwatchError
+from railwatch.recordings import track_map as tm
+
+
+def passes_over(truth: np.ndarray, n: int, seen: float, false_per_km: float, length: float,
+                seed: int = 0, offsets: list[tuple[float, float]] | None = None,
+                ) -> list[tm.PassEvents]:
+    """Synthetic scans: each pass sees each true position with probability ``seen`` (0.3 m
+    jitter), plus false events; its positions recorded as (x - a) / b."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        x = truth[rng.random(len(truth)) < seen]
+        x = x + rng.normal(0, 0.3, len(x))
+        false = rng.uniform(0, length, rng.poisson(false_per_km * length / 1000))
+        x = np.concatenate([x, false])
+        a, b = offsets[i] if offsets else (0.0, 1.0)
+        rec = (x - a) / b
+        out.append(tm.PassEvents(
+            name=f"pass{i:02d}", position=rec, score=np.full(len(x), 5.0),
+            duration_s=np.full(len(x), 0.02), channel=["axle_1"] * len(x),
+            group=["axle"] * len(x), covered=tuple(sorted(((0 - a) / b, (length - a) / b)))))
+    return out
+
+
+def brute_clusters(x: np.ndarray, tol: float) -> set[frozenset[int]]:
+    """Connected components of the graph |xi - xj| <= tol, by union-find over every pair."""
+    parent = list(range(len(x)))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for i in range(len(x)):
+        for j in range(i + 1, len(x)):
+            if abs(x[i] - x[j]) <= tol:
+                parent[find(i)] = find(j)
+    groups: dict[int, set[int]] = {}
+    for i in range(len(x)):
+        groups.setdefault(find(i), set()).add(i)
+    return {frozenset(g) for g in groups.values()}
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_single_linkage_equals_brute_force(seed: int) -> None:
+    x = np.random.default_rng(seed).uniform(0, 100, 60)
+    labels = tm.single_linkage(x, 2.0)
+    got = {frozenset(np.flatnonzero(labels == k).tolist()) for k in np.unique(labels)}
+    assert got == brute_clusters(x, 2.0)
+
+
+def test_alignment_recovers_a_known_offset_and_direction() -> None:
+    truth = np.sort(np.random.default_rng(1).uniform(100, 9900, 40))
+    ref = truth + np.random.default_rng(2).normal(0, 0.2, 40)
+    for a, b in ((37.0, 1.0), (-12.5, 1.001), (9500.0, -1.0), (9480.0, -0.999)):
+        x = (truth - a) / b  # recorded so that a + b·x is the reference's position
+        got_a, got_b = tm.fit_transform(x, ref, tolerance=2.0, search=None)
+        assert abs(got_b - b) < 2e-4 and np.abs(got_a + got_b * x - truth).max() < 1.0
+
+
+def test_nothing_moves_without_evidence() -> None:
+    ref = np.array([100.0, 500.0, 900.0])
+    assert tm.fit_transform(np.array([300.0, 711.0]), ref, 2.0, 50.0) == (0.0, 1.0)
+
+
+def test_map_of_passes_with_odometry_errors_finds_the_defects(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    truth = np.sort(np.random.default_rng(3).uniform(50, 9950, 40))
+    # Offsets of 8 m and scale errors of 0.05 % (5 m at the far end) that average out over the
+    # passes: the map's frame (the mean of the passes') is then the track's.
+    a = np.random.default_rng(4).normal(0, 8, 10)
+    e = np.random.default_rng(5).normal(0, 5e-4, 10)
+    offsets = [(float(x), 1 + float(y)) for x, y in zip(a - a.mean(), e - e.mean(), strict=True)]
+    passes = passes_over(truth, 10, 0.7, 2.0, 10_000, offsets=offsets)
+    got = tm.reported(tm.track_map(passes, tolerance_m=2.0), 0.3, len(passes))
+    s = tm.score_locations(got, truth, 10_000, 2.0)
+    assert s["recall"] >= 0.95 and s["false_per_km"] <= 0.2, s
+    # Taken as recorded, offsets of 8 m scatter the passes: the alignment is what finds them.
+    monkeypatch.setattr(tm, "align", lambda p, *a, **k: [(0.0, 1.0)] * len(p))
+    as_recorded = tm.reported(tm.track_map(passes, tolerance_m=2.0), 0.3, len(passes))
+    assert tm.score_locations(as_recorded, truth, 10_000, 2.0)["recall"] < 0.8
+
+
+def test_seen_on_9_of_10_ranks_above_1_of_10() -> None:
+    truth = np.array([1000.0, 5000.0])
+    passes = passes_over(truth, 10, 1.0, 0.0, 10_000)
+    for i, p in enumerate(passes):  # 5000 m: seen on pass 0 only; 1000 m: on all but pass 9
+        keep = (np.abs(p.position - 5000) > 5) | (i == 0)
+        keep &= (np.abs(p.position - 1000) > 5) | (i != 9)
+        passes[i] = tm.PassEvents(p.name, p.position[keep], p.score[keep], p.duration_s[keep],
+                                  [c for c, k in zip(p.channel, keep, strict=True) if k],
+                                  [g for g, k in zip(p.group, keep, strict=True) if k],
+                                  p.covered)
+    locs = tm.track_map(passes, 2.0)
+    by_place = {round(loc.position_m, -2): loc for loc in locs}
+    nine, one = by_place[1000.0], by_place[5000.0]
+    assert (nine.passes_seen, nine.passes_covered, one.passes_seen) == (9, 10, 1)
+    assert nine.rank < one.rank and nine.confidence > one.confidence
+    assert tm.reported(locs, 0.3, 10) == [nine]
+    assert tm.wilson_lower(9, 10) > tm.wilson_lower(1, 1) > tm.wilson_lower(1, 10)
+
+
+def test_reading_a_scan_folder(tmp_path: Path) -> None:
+    with pytest.raises(RailwatchError, match="holds no scanned recordings"):
+        tm.read_scan(tmp_path)
+    (tmp_path / "a.scan.json").write_text(json.dumps(
+        {"position_first_m": 0.0, "position_last_m": 100.0}))
+    (tmp_path / "a.events.csv").write_text("start_s,end_s,peak_s,channel,group,score\n")
+    with pytest.raises(RailwatchError, match="has no position_m column"):
+        tm.read_scan(tmp_path)
+    (tmp_path / "a.events.csv").write_text(
+        "start_s,end_s,peak_s,channel,group,score,threshold,position_m\n"
+        "1.0,1.02,1.01,axle_1,axle,7.5,3.0,42.5\n")
+    (p,) = tm.read_scan(tmp_path)
+    assert p.position.tolist() == [42.5] and p.covered == (0.0, 100.0)
+    (tmp_path / "a.scan.json").write_text(json.dumps(
+        {"position_first_m": None, "position_last_m": None}))
+    with pytest.raises(RailwatchError, match="no track position"):
+        tm.read_scan(tmp_path)
