@@ -106,11 +106,12 @@ deviation-like, from the events' duration), first_seen, last_seen (recording nam
               help="Largest offset between two passes' positions; 0: any (positions counted "
                    "from each pass's start).")
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
-              help="Report a location seen on at least this share of the passes that covered it "
-                   "(and on 2 passes where 2 or more covered it).")
+              help="Report a location seen on at least this share of the passes that covered it, "
+                   "and on 2 passes at least (one pass confirms nothing).")
 @click.option("--truth", type=click.Path(path_type=Path),
-              help="True defects by position (a position_m column, e.g. the track.defects.csv of "
-                   "'generate-run --passes'): recall and false locations per km.")
+              help="True defects by position (a position_m column, and length_m if they are "
+                   "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
+                   "false locations per km.")
 def track_map(events_dir: Path, out: Path, plot: Path | None, tolerance_m: float,
               max_offset_m: float, min_share: float, truth: Path | None) -> None:
     """Turn the events of repeated passes over one line into ranked locations on the track.
@@ -143,7 +144,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, tolerance_m: float
             f"{min_share:g} of the passes that covered them)")
     if truth_m is not None:
         lo, hi = tm.covered_range(passes)
-        covered = truth_m[(truth_m >= lo) & (truth_m <= hi)]
+        covered = tm.on_stretch(truth_m, lo, hi)
         s = tm.score_locations(reported, covered, hi - lo, tolerance_m)
         line += (f"; against the {len(covered)} defects of {truth.name} on the covered "
                  f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "

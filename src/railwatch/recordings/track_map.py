@@ -7,16 +7,11 @@ noise levels); a false event does not. The map turns the events of many recordin
 
 1. **Alignment.** Each pass's recorded positions carry their own odometry error (an offset, a
    scale error, a slow walk), and may count along the track either way (an odometer counting
-   from the pass's own start). The pass with the most events is the reference; every other
-   pass gets the linear map ``x ↦ a + b·x`` that lays its events onto the reference's: the
-   direction (``b`` near +1 or −1) and offset from the densest difference between its events
-   and the reference's (within ``search_m``, or any), then a least-squares fit on the events
-   that match within the tolerance (``|b|`` held to 1 ± 2 %); a pass is moved only when the
-   move makes at least 3 of its events, and 2 more than as recorded, repeat. Passes are then
-   refitted against the places seen on at least two passes, so no single pass's error is the
-   frame. Where every
-   pass records track positions (all ``b`` > 0), the map's frame is the mean of the passes'
-   frames; otherwise it is the reference pass's.
+   from the pass's own start). Each pass in turn gets the linear map ``x ↦ a + b·x`` that lays
+   its events on those of all the other passes (:func:`fit_transform`: a Hough search over the
+   slope and offset, then least squares); a real defect is in most passes, so it votes many
+   times where a false event votes once. Where every pass records track positions (all
+   ``b`` > 0), the map's frame is the mean of the passes' frames.
 2. **Clustering.** Aligned events closer than ``tolerance_m`` are one location (single linkage:
    the connected groups of the "closer than" graph).
 3. **Per location:** position (median), extent, passes seen, passes that covered it (their
@@ -49,9 +44,12 @@ EVENTS_SUFFIX = ".events.csv"
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "passes_seen", "passes_covered",
               "share", "confidence", "median_score", "channel", "group", "kind_guess",
               "first_seen", "last_seen")
-#: Events up to this long (s) look like a spike, longer ones like a local deviation.
-SPIKE_LIKE_S = 0.04
-MAX_SCALE_ERROR = 0.02
+#: Events up to this long (s) look like a spike, longer ones like a local deviation. An event
+#: lasts longer than its defect (the windows around it score too): on context-glr's events of a
+#: development track (stage 5, loud stretches) spikes' events last 0.15 / 0.35 / 0.39 s
+#: (quartiles), local deviations' 0.42 / 0.47 / 0.55 s; this cut guesses about 3 in 4 right.
+SPIKE_LIKE_S = 0.4
+MAX_SCALE_ERROR = 0.005  # |b| within 1 ± 0.5 %: odometry scale errors are a few per mille
 #: A pass is moved only when at least this many of its events (and two more than as recorded)
 #: repeat on the reference after the move.
 MIN_VOTES = 3
@@ -137,62 +135,64 @@ def _read_pass(info_path: Path) -> PassEvents:
 
 
 # ----------------------------------------------------------------------------- alignment
-def _offset(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
-            search: float | None) -> tuple[float, int] | None:
-    """The shift ``d`` that lays most of ``x + d`` within ``tolerance`` of ``ref``, and how many
-    pairs agree on it (the densest window of width 2·tolerance among the pairwise differences,
-    within ``search`` of 0 when given)."""
-    if not len(x) or not len(ref):
-        return None
-    diff = (ref[None, :] - x[:, None]).ravel()
-    if search is not None:
-        diff = diff[np.abs(diff) <= search]
-    diff = np.sort(diff)
-    if not len(diff):
-        return None
-    right = np.searchsorted(diff, diff + 2 * tolerance, side="right")
-    best = int(np.argmax(right - np.arange(len(diff))))
-    votes = int(right[best] - best)
-    if votes < 2:
-        return None
-    return float(np.median(diff[best:right[best]])), votes
-
-
 def _nearest(x: NDArray[np.float64], ref: NDArray[np.float64]) -> NDArray[np.float64]:
-    """For each ``x``, the nearest value of the sorted ``ref``."""
+    """For each ``x``, the nearest value of the sorted ``ref`` (two values at least)."""
     i = np.clip(np.searchsorted(ref, x), 1, len(ref) - 1)
     left, right = ref[i - 1], ref[i]
     return np.where(np.abs(x - left) <= np.abs(right - x), left, right)
 
 
+def _votes(x: NDArray[np.float64], ref: NDArray[np.float64], b: float, tolerance: float,
+           search: float | None) -> tuple[int, float]:
+    """For slope ``b``: the most pairs ``(x_i, ref_j)`` that one offset ``a`` lays within
+    ``tolerance`` (the densest window of width 2·tolerance among ``ref_j − b·x_i``, within
+    ``search`` of the identity's offset when given), and that offset."""
+    diff = (ref[None, :] - b * x[:, None]).ravel()
+    if search is not None:
+        diff = diff[np.abs(diff - (1 - b) * np.median(x)) <= search]
+    if not len(diff):
+        return 0, 0.0
+    diff = np.sort(diff)
+    right = np.searchsorted(diff, diff + 2 * tolerance, side="right")
+    best = int(np.argmax(right - np.arange(len(diff))))
+    return int(right[best] - best), float(np.median(diff[best:right[best]]))
+
+
 def fit_transform(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
                   search: float | None) -> tuple[float, float]:
-    """``(a, b)`` with ``a + b·x`` laid onto the reference positions ``ref``: ``b`` near +1, or
-    near −1 for positions counted the other way along the track (odometry that counts from the
-    pass's own start), whichever lays more events within ``tolerance``; ``(0, 1)`` if nothing
-    repeats."""
-    ref = np.sort(ref)
+    """``(a, b)`` that lays ``a + b·x`` onto the reference positions ``ref`` (the other passes'
+    events): a search over the slope (``b`` within :data:`MAX_SCALE_ERROR` of +1, or of −1 for
+    positions counted the other way along the track) and the offset (within ``search``, or any)
+    for the most pairs within ``tolerance`` (a Hough transform of the matching pairs), then a
+    least-squares line through the matched events. ``(0, 1)`` unless the best move makes at
+    least :data:`MIN_VOTES` pairs, and 2 more than as recorded, match."""
+    ref = np.sort(np.asarray(ref, dtype=float))
     if len(ref) < 2 or not len(x):
         return 0.0, 1.0
-    tries = [(sign, _offset(sign * x, ref, tolerance, search)) for sign in (1.0, -1.0)]
-    tries = [(sign, found) for sign, found in tries if found is not None]
-    # As recorded, how many events already repeat: a shift must beat that clearly.
     as_is = int((np.abs(_nearest(x, ref) - x) <= tolerance).sum())
-    if not tries or max(t[1][1] for t in tries) < max(MIN_VOTES, as_is + 2):
+    span = max(float(np.ptp(x)), 1.0)
+    # Slope steps that move the far end by half the tolerance.
+    step = max(tolerance / (2 * span), 1e-6)
+    grid = np.arange(-MAX_SCALE_ERROR, MAX_SCALE_ERROR + step / 2, step)
+    found = [(*_votes(x, ref, sign * (1 + e), tolerance, search), sign * (1 + e))
+             for sign in (1.0, -1.0) for e in grid]
+    votes, a, b = max(found, key=lambda f: (f[0], -abs(abs(f[2]) - 1)))
+    if votes < max(MIN_VOTES, as_is + 2):
         return 0.0, 1.0
-    sign, (a, _) = max(tries, key=lambda t: t[1][1])
-    b = sign
-    for _ in range(3):
+    sign = 1.0 if b > 0 else -1.0
+    for _ in range(3):  # least squares through the matched events
         y = a + b * x
         near = _nearest(y, ref)
         ok = np.abs(near - y) <= tolerance
-        if ok.sum() < 3 or np.ptp(x[ok]) < 100.0:  # too few, or too close, for a scale
+        if ok.sum() < 3 or np.ptp(x[ok]) < 100.0:
             if ok.any():
                 a = float(np.median(near[ok] - b * x[ok]))
-            return a, b
+            break
         b_fit, a_fit = np.polyfit(x[ok], near[ok], 1)
-        b = float(np.clip(b_fit, sign - MAX_SCALE_ERROR, sign + MAX_SCALE_ERROR))
-        a = float(a_fit) if b == b_fit else float(np.median(near[ok] - b * x[ok]))
+        lo, hi = sorted((sign * (1 - MAX_SCALE_ERROR), sign * (1 + MAX_SCALE_ERROR)))
+        b_new = float(np.clip(b_fit, lo, hi))
+        a = float(a_fit) if b_new == b_fit else float(np.median(near[ok] - b_new * x[ok]))
+        b = b_new
     return a, b
 
 
@@ -200,56 +200,37 @@ def align(passes: list[PassEvents], tolerance_m: float = 2.0,
           search_m: float | None = 50.0) -> list[tuple[float, float]]:
     """Per pass ``(a, b)``: ``a + b·position`` is the position in the map's frame.
 
-    ``search_m`` bounds the offset between two passes' positions (None: any offset, for
-    positions that are not the track's, such as a distance counted from each pass's start).
+    Each pass in turn is fitted (:func:`fit_transform`) to the events of all the others in
+    their current frames, three rounds; a real defect is in most passes, so it votes many times
+    where false events vote once. ``search_m`` bounds the offset between two passes' positions
+    (None: any offset, for positions that are not the track's, such as a distance counted from
+    each pass's start).
     """
-    if not passes:
-        return []
-    ref = max(range(len(passes)), key=lambda i: len(passes[i].position))
-    transforms = [(0.0, 1.0)] * len(passes)
-    for i, p in enumerate(passes):
-        if i != ref:
-            transforms[i] = fit_transform(p.position, passes[ref].position, tolerance_m,
-                                          search_m)
-    for _ in range(2):  # against the places seen on >= 2 passes, not one pass's frame
-        labels, xs, owners = _cluster_all(passes, transforms, tolerance_m)
-        centres = np.array([np.median(xs[labels == k]) for k in np.unique(labels)
-                            if len(set(owners[labels == k])) >= 2])
-        if len(centres) < 2:
+    n = len(passes)
+    transforms = [(0.0, 1.0)] * n
+    if n < 2:
+        return transforms
+    for _ in range(3):
+        moved = False
+        for i, p in enumerate(passes):
+            others = np.concatenate([a + b * q.position for k, (q, (a, b)) in
+                                     enumerate(zip(passes, transforms, strict=True)) if k != i])
+            a0, b0 = transforms[i]
+            # Fit the pass as it stands in the map (its current frame), then compose.
+            da, db = fit_transform(a0 + b0 * p.position, others, tolerance_m,
+                                   search_m if (a0, b0) == (0.0, 1.0) else tolerance_m * 3)
+            if (da, db) != (0.0, 1.0):
+                transforms[i] = (da + db * a0, db * b0)
+                moved = True
+        if not moved:
             break
-        transforms = [_refit(p.position, t, centres, tolerance_m)
-                      for p, t in zip(passes, transforms, strict=True)]
     if all(b > 0 for _, b in transforms):
         # Track positions in every pass: the map's frame is the mean of the passes' frames
-        # (no pass is the truth). Otherwise it stays the reference pass's.
+        # (no pass is the truth). Otherwise it stays the first pass's orientation and origin.
         a_mean = float(np.mean([a for a, _ in transforms]))
         b_mean = float(np.mean([b for _, b in transforms]))
         transforms = [((a - a_mean) / b_mean, b / b_mean) for a, b in transforms]
     return transforms
-
-
-def _refit(x: NDArray[np.float64], start: tuple[float, float], centres: NDArray[np.float64],
-           tolerance: float) -> tuple[float, float]:
-    """``start`` refined against the map's places: a least-squares line through the events
-    within ``tolerance`` of one (its slope within 2 % of the start's)."""
-    a, b = start
-    if not len(x):
-        return a, b
-    centres = np.sort(centres)
-    for _ in range(2):
-        y = a + b * x
-        near = _nearest(y, centres)
-        ok = np.abs(near - y) <= tolerance
-        if ok.sum() < 3 or np.ptp(x[ok]) < 100.0:
-            if ok.any():
-                a = float(np.median(near[ok] - b * x[ok]))
-            return a, b
-        b_fit, a_fit = np.polyfit(x[ok], near[ok], 1)
-        sign = 1.0 if start[1] > 0 else -1.0
-        b_new = float(np.clip(b_fit, sign - MAX_SCALE_ERROR, sign + MAX_SCALE_ERROR))
-        a = float(a_fit) if b_new == b_fit else float(np.median(near[ok] - b_new * x[ok]))
-        b = b_new
-    return a, b
 
 
 # ----------------------------------------------------------------------------- clustering
@@ -334,18 +315,23 @@ def write_map(path: str | os.PathLike[str], locations: list[Location]) -> Path:
 
 
 def read_truth(path: str | os.PathLike[str]) -> NDArray[np.float64]:
-    """True defect positions (a ``position_m`` column: a track's defects table)."""
+    """True defects as stretches of track, (n, 2) start and end in m: a ``position_m`` column
+    (where each starts) and, if there is one, ``length_m`` (a track's defects table)."""
     path = Path(path)
     try:
         with open(path, newline="") as fh:
             reader = csv.DictReader(fh)
             if "position_m" not in (reader.fieldnames or []):
                 raise RailwatchError(f"{path} needs a position_m column of defect positions")
-            return np.array([float(r["position_m"]) for r in reader], dtype=float)
+            rows = list(reader)
+        start = np.array([float(r["position_m"]) for r in rows], dtype=float)
+        length = np.array([float(r.get("length_m") or 0.0) for r in rows], dtype=float)
     except OSError as e:
         raise RailwatchError(f"cannot read {path}: {e}") from None
     except ValueError:
-        raise RailwatchError(f"{path}: position_m must hold numbers of metres") from None
+        raise RailwatchError(f"{path}: position_m and length_m must hold numbers of metres") \
+            from None
+    return np.stack([start, start + length], axis=1).reshape(-1, 2)
 
 
 def reported(locations: list[Location], min_share: float = 0.3,
@@ -364,13 +350,25 @@ def covered_range(passes: list[PassEvents]) -> tuple[float, float]:
     return min(p.covered[0] for p in passes), max(p.covered[1] for p in passes)
 
 
-def score_locations(locations: list[Location], truth_m: NDArray[np.float64], length_m: float,
+def on_stretch(truth: NDArray[np.float64], lo: float, hi: float) -> NDArray[np.float64]:
+    """The true defects (:func:`read_truth`) that lie on the stretch ``[lo, hi]``."""
+    truth = np.asarray(truth, dtype=float).reshape(-1, 2)
+    return truth[(truth[:, 1] >= lo) & (truth[:, 0] <= hi)]
+
+
+def score_locations(locations: list[Location], truth: NDArray[np.float64], length_m: float,
                     tolerance_m: float = 2.0) -> dict[str, float]:
-    """Recall of the true positions within ``tolerance_m`` by ``locations``, and the locations
-    near no true defect per km of ``length_m``."""
+    """Recall of the true defects (stretches ``(start, end)``, or positions) by ``locations``
+    (a location within ``tolerance_m`` of a defect's stretch finds it), and the locations near
+    no true defect per km of ``length_m``."""
     at = np.array([loc.position_m for loc in locations], dtype=float)
-    truth_m = np.asarray(truth_m, dtype=float)
-    hit = [bool(len(at)) and bool(np.any(np.abs(at - t) <= tolerance_m)) for t in truth_m]
-    false = sum(not (len(truth_m) and np.any(np.abs(truth_m - x) <= tolerance_m)) for x in at)
-    return {"recall": float(np.mean(hit)) if len(truth_m) else math.nan,
-            "false_per_km": false / max(length_m / 1000.0, 1e-9), "locations": float(len(at))}
+    truth = np.asarray(truth, dtype=float)
+    truth = np.stack([truth, truth], axis=1) if truth.ndim == 1 else truth.reshape(-1, 2)
+    if len(at) and len(truth):
+        near = (at[None, :] >= truth[:, :1] - tolerance_m) & \
+            (at[None, :] <= truth[:, 1:] + tolerance_m)  # (defects, locations)
+    else:
+        near = np.zeros((len(truth), len(at)), dtype=bool)
+    return {"recall": float(near.any(axis=1).mean()) if len(truth) else math.nan,
+            "false_per_km": float((~near.any(axis=0)).sum()) / max(length_m / 1000.0, 1e-9),
+            "locations": float(len(at))}

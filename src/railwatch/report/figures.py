@@ -282,7 +282,8 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
         colour = "tab:red" if id(loc) in shown else "0.65"
         ax.vlines(loc.position_m / 1000, 0, loc.share, color=colour, lw=1.6)
     if truth_m is not None and len(truth_m):
-        ax.plot(np.asarray(truth_m) / 1000, np.full(len(truth_m), -0.04), "^",
+        starts = np.asarray(truth_m, dtype=float).reshape(len(truth_m), -1)[:, 0]
+        ax.plot(starts / 1000, np.full(len(starts), -0.04), "^",
                 color="tab:green", ms=5, label="true defect")
         ax.legend(loc="upper right", fontsize=8)
     ax.set_ylim(-0.08, 1.05)

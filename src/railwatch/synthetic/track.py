@@ -211,7 +211,8 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
     (true defects by position), ``layout.toml`` (every pass's columns), and per pass
     ``passNN<suffix>`` (the recording) and ``passNN.defects.csv`` (when and where it crossed each
     defect). Pass ``i`` runs forwards when ``i`` is even, backwards when odd; each has its own
-    seed, start offset and odometry error. Returns the track and the recordings' paths."""
+    seed, start offset and odometry error. ``track.defects.csv`` is written last, so a folder
+    that has it holds every pass. Returns the track and the recordings' paths."""
     from railwatch.recordings.layout import layout_toml
     from railwatch.recordings.readers import FORMATS, write_recording
 
@@ -224,7 +225,6 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
     track = make_track(length_m, n_defects, seed=seed, stage=stage, loud_stretches=loud_stretches)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    track.write(out / "track.defects.csv")
     with atomic_path(out / "layout.toml") as tmp:
         tmp.write_text(layout_toml(Run.layout(fs)))
     paths = []
@@ -236,6 +236,7 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
         paths.append(write_recording(out / f"{name}{suffix}", p.run.columns()))
         if progress is not None:
             progress(1)
+    track.write(out / "track.defects.csv")  # last: a folder with it holds every pass
     return track, paths
 
 
