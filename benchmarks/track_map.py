@@ -172,6 +172,7 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
     import csv
     import json
 
+    from railwatch.recordings.pipeline import EVENT_FIELDS
     from railwatch.recordings.track_map import EVENTS_SUFFIX, SCAN_SUFFIX
     from railwatch.synthetic.track import Odometry, make_track, synthesize_pass
 
@@ -195,9 +196,8 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
         for r in rows:
             r["position_m"] = f"{np.interp(float(r['peak_s']), p.run.time, p.run.position):.4f}"
         with open(out / f"{name}{EVENTS_SUFFIX}", "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else
-                                    ["start_s", "end_s", "peak_s", "channel", "group", "score",
-                                     "threshold", "position_m"], lineterminator="\n")
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else EVENT_FIELDS,
+                                    lineterminator="\n")
             writer.writeheader()
             writer.writerows(rows)
     return out

@@ -15,7 +15,7 @@ import hashlib
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -83,6 +83,18 @@ def atomic_savez(path: str | os.PathLike[str], arrays: dict[str, Any]) -> Path:
 
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
+    return Path(path)
+
+
+def atomic_csv(path: str | os.PathLike[str], fields: Sequence[str],
+               rows: Iterable[Mapping[str, Any]]) -> Path:
+    """A CSV table (a header of ``fields``, then ``rows``) written atomically."""
+    import csv
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(fields), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
     return Path(path)
 
 

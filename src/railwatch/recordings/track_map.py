@@ -29,12 +29,11 @@ import os
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.atomic import atomic_path
+from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
 
 #: What a scan writes per recording beside its events (``<name>.scan.json``).
@@ -281,9 +280,9 @@ def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     groups = [g for p in passes for g in p.group]
     spans = [sorted((a + b * p.covered[0], a + b * p.covered[1]))
              for p, (a, b) in zip(passes, transforms, strict=True)]
+    order = np.argsort(labels, kind="stable")  # each place's events, in index order
     found = []
-    for k in np.unique(labels):
-        idx = np.flatnonzero(labels == k)
+    for idx in np.split(order, np.flatnonzero(np.diff(labels[order])) + 1):
         at = float(np.median(xs[idx]))
         seen_by = sorted(set(owners[idx].tolist()))
         covered = sum(lo - tolerance_m <= at <= hi + tolerance_m for lo, hi in spans)
@@ -304,14 +303,9 @@ def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
 
 # ----------------------------------------------------------------------------- outputs
 def write_map(path: str | os.PathLike[str], locations: list[Location]) -> Path:
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=MAP_FIELDS, lineterminator="\n")
-        writer.writeheader()
-        for loc in locations:
-            row: dict[str, Any] = asdict(loc)
-            writer.writerow({k: f"{v:.4f}" if isinstance(v, float) else v
-                             for k, v in row.items()})
-    return Path(path)
+    rows = ({k: f"{v:.4f}" if isinstance(v, float) else v for k, v in asdict(loc).items()}
+            for loc in locations)
+    return atomic_csv(path, MAP_FIELDS, rows)
 
 
 def read_truth(path: str | os.PathLike[str]) -> NDArray[np.float64]:

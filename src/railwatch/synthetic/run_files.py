@@ -4,11 +4,10 @@ beside it."""
 
 from __future__ import annotations
 
-import csv
 import os
 from pathlib import Path
 
-from railwatch.atomic import atomic_path
+from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import layout_toml
 from railwatch.recordings.readers import FORMATS, write_recording
@@ -40,9 +39,6 @@ def write_run(out: str | os.PathLike[str], minutes: float, seed: int = 0, fs: fl
     layout_path, truth_path = Path(f"{stem}.layout.toml"), Path(f"{stem}.defects.csv")
     with atomic_path(layout_path) as tmp:
         tmp.write_text(layout_toml(Run.layout(fs)))
-    with atomic_path(truth_path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=DEFECT_FIELDS, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(run.defects)
+    atomic_csv(truth_path, DEFECT_FIELDS, run.defects)
     write_recording(out, run.columns())
     return run, layout_path, truth_path

@@ -18,7 +18,6 @@ is not known exactly) and a random walk, as a vehicle's odometry or GPS drifts b
 
 from __future__ import annotations
 
-import csv
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -27,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from railwatch.atomic import atomic_path
+from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
 from railwatch.synthetic.runs import (
     CHANNEL_GROUPS,
@@ -96,7 +95,7 @@ class Track:
 
     def write(self, path: str | os.PathLike[str]) -> Path:
         """The true defects, by position, as CSV (:data:`TRACK_FIELDS`)."""
-        return _write_csv(path, TRACK_FIELDS, [asdict(d) for d in self.defects])
+        return atomic_csv(path, TRACK_FIELDS, [asdict(d) for d in self.defects])
 
 
 def make_track(length_m: float = 10_000.0, n_defects: int = 40, seed: int = 0, stage: int = 5,
@@ -148,7 +147,7 @@ class Pass:
     crossings: list[dict[str, Any]]  # PASS_FIELDS
 
     def write_truth(self, path: str | os.PathLike[str]) -> Path:
-        return _write_csv(path, PASS_FIELDS, self.crossings)
+        return atomic_csv(path, PASS_FIELDS, self.crossings)
 
 
 def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int = 1,
@@ -252,12 +251,3 @@ def _odometry(rng: np.random.Generator, start: float, travel_m: NDArray[np.float
     if odo.relative:
         return offset + scale * travel_m + walk
     return start + offset + direction * scale * travel_m + walk
-
-
-def _write_csv(path: str | os.PathLike[str], fields: tuple[str, ...],
-               rows: list[dict[str, Any]]) -> Path:
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(rows)
-    return Path(path)
