@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from railwatch.cli import main
@@ -53,6 +54,16 @@ def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # typ
         info = json.loads((out / f"{p.stem}.scan.json").read_text())
         assert info["events"] == sum(r["recording"] == p.stem for r in rows)
         assert info["position_first_m"] is not None
+        with np.load(out / f"{p.stem}.profile.npz", allow_pickle=False) as f:
+            assert f["channel_score"].shape == (len(f["position_m"]), 6)
+            assert list(f["groups"]) == ["axle", "axle", "bogie", "bogie", "body", "body"]
+            assert np.isfinite(f["position_m"]).all()
+            # An event's peak score is the profile's score (highest channel) at its peak.
+            point, t = f["channel_score"].max(axis=1), f["time_s"]
+            for r in rows:
+                if r["recording"] == p.stem:
+                    j = int(np.argmin(np.abs(t - float(r["peak_s"]))))
+                    assert point[j] == pytest.approx(float(r["score"]), rel=1e-5, abs=1e-3)
     again = scan(folder / "model", paths, out)
     assert (again.scanned, again.reused, again.events) == (0, 4, summary.events)
 

@@ -11,6 +11,8 @@ import click
 from railwatch.cli.common import info, writable_file
 from railwatch.errors import RailwatchError
 
+METHOD_CHOICES = ("fused", "votes")  # recordings.track_map.METHODS (kept torch- and numpy-free)
+
 
 def expand_recordings(items: tuple[str, ...]) -> list[Path]:
     """Files, folders (every recording in them) and shell globs, in name order."""
@@ -32,10 +34,11 @@ def expand_recordings(items: tuple[str, ...]) -> list[Path]:
 
 
 @click.command(epilog="""\b
-OUT gets, per recording NAME: NAME.events.csv and NAME.scan.json (what was scanned, the
-stretch of track covered); and events.csv, every event with its recording. A recording scanned
-before by the same model (same file, same threshold) is not scanned again: kill a scan and
-start it again, and it goes on where it stopped.""")
+OUT gets, per recording NAME: NAME.events.csv, NAME.profile.npz (every sample's score per
+channel and its position: what track-map fuses across passes) and NAME.scan.json (what was
+scanned, the stretch of track covered); and events.csv, every event with its recording. A
+recording scanned before by the same model (same file, same threshold) is not scanned again:
+kill a scan and start it again, and it goes on where it stopped.""")
 @click.option("--model", type=click.Path(path_type=Path), required=True,
               help="Model folder written by 'railwatch train --recordings' (or its .onnx).")
 @click.option("--recordings", "recordings", multiple=True, required=True, metavar="PATH...",
@@ -90,36 +93,52 @@ def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, .
 
 
 @click.command("track-map", epilog="""\b
-MAP.csv: one row per location, most confident first: rank, position_m (the map's frame: the
-mean of the passes' odometry), start_m, end_m, passes_seen, passes_covered, share, confidence
-(95 % lower bound of the share), median_score, channel, group, kind_guess (spike-like or
-deviation-like, from the events' duration), first_seen, last_seen (recording names).""")
+MAP.csv: one row per place, most evident first: rank, position_m (the map's frame: the mean of
+the passes' odometry), start_m, end_m, evidence (-log10 of the fused tail), false_per_km (how
+many places this strong passes without a repeating defect give per km: the map's own
+false-alarm estimate), passes_seen (passes whose score there is in the top 1 % of their
+neighbourhood), passes_covered, share, confidence (95 % lower bound of the share),
+median_score, channel, group, kind_guess (spike-like or deviation-like, from the events'
+duration), first_seen, last_seen (recording names).
+\b
+--method votes ranks the places where events cluster by the share of passes with an event
+(evidence and false_per_km empty); it needs only the events.""")
 @click.option("--events", "events_dir", type=click.Path(path_type=Path), required=True,
-              help="Scan folder written by 'railwatch scan' (events and the track covered).")
+              help="Scan folder written by 'railwatch scan' (events, score profiles, the track "
+                   "covered).")
 @click.option("--out", type=click.Path(path_type=Path, dir_okay=False), required=True,
               help="Map to write (.csv).")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False),
-              help="Also draw the track with the locations as bars of confirmation (PNG).")
+              help="Also draw the track with the evidence and the reported places (PNG).")
+@click.option("--method", type=click.Choice(METHOD_CHOICES), default="fused", show_default=True,
+              help="fused: every pass's scores, calibrated and summed per place; votes: count "
+                   "the passes with an event.")
+@click.option("--false-per-km", type=click.FloatRange(min=0, min_open=True), default=0.1,
+              show_default=True,
+              help="fused: report places stronger than chance gives this often per km.")
 @click.option("--tolerance-m", type=click.FloatRange(min=0, min_open=True), default=2.0,
               show_default=True, help="Events of different passes closer than this are one place.")
 @click.option("--max-offset-m", type=click.FloatRange(min=0), default=50.0, show_default=True,
               help="Largest offset between two passes' positions; 0: any (positions counted "
                    "from each pass's start).")
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
-              help="Report a location seen on at least this share of the passes that covered it, "
-                   "and on 2 passes at least (one pass confirms nothing).")
+              help="votes: report a place seen on at least this share of the passes that "
+                   "covered it, and on 2 passes at least (one pass confirms nothing).")
 @click.option("--truth", type=click.Path(path_type=Path),
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
                    "false locations per km.")
-def track_map(events_dir: Path, out: Path, plot: Path | None, tolerance_m: float,
-              max_offset_m: float, min_share: float, truth: Path | None) -> None:
-    """Turn the events of repeated passes over one line into ranked locations on the track.
+def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
+              tolerance_m: float, max_offset_m: float, min_share: float,
+              truth: Path | None) -> None:
+    """Turn repeated passes over one line into ranked places on the track.
 
     \b
-    Passes are aligned (each pass's odometry offset and drift, from the events that repeat),
-    events clustered by position, and each place ranked by how many of the passes that
-    covered it saw something there: a defect repeats, a false event does not.
+    Passes are aligned (each pass's odometry offset and drift, from the events that repeat);
+    each pass's scores are calibrated against its own neighbourhood and summed over the passes
+    at every place: a defect raises the score on most passes, even below the event threshold;
+    a false event or a loud stretch of one pass does not repeat. What counts as evident is
+    measured by shifting the passes against each other at random.
     Example:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
     """
@@ -132,16 +151,24 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, tolerance_m: float
         writable_file(plot)
     passes = tm.read_scan(events_dir)
     truth_m = tm.read_truth(truth) if truth else None
-    locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
-    reported = tm.reported(locations, min_share, len(passes))
+    fused = None
+    if method == "fused":
+        locations, fused = tm.fused_map(passes, tolerance_m, max_offset_m or None)
+        reported = tm.reported_fused(locations, false_per_km)
+        rule = f"at most {false_per_km:g} such places per km by chance"
+    else:
+        locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
+        reported = tm.reported(locations, min_share, len(passes))
+        rule = f"seen on >= {min_share:g} of the passes that covered them"
     tm.write_map(out, locations)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
 
-        save_figure(track_map_figure(locations, passes, reported, truth_m), plot)
+        save_figure(track_map_figure(locations, passes, reported, truth_m, fused,
+                                     None if fused is None else fused.level(false_per_km)),
+                    plot)
     line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
-            f"{len(locations)} locations, {len(reported)} reported (seen on >= "
-            f"{min_share:g} of the passes that covered them)")
+            f"{len(locations)} places, {len(reported)} reported ({rule})")
     if truth_m is not None:
         lo, hi = tm.covered_range(passes)
         covered = tm.on_stretch(truth_m, lo, hi)

@@ -2,10 +2,11 @@
 process or as Ray tasks, resumable (a recording scanned by the same model is not scanned again).
 
 For every recording ``NAME.EXT`` the scan folder gets ``NAME.events.csv`` (the events of
-``railwatch detect``) and then ``NAME.scan.json`` (the recording, the model, the stretch of track
-it covered, when): written last, it marks the recording done. ``events.csv`` combines them all
-with a ``recording`` column. Only the driver writes; a Ray task reads its recording and returns
-its events.
+``railwatch detect``), ``NAME.profile.npz`` (every per-sample score with its position: what the
+track map fuses across passes) and then ``NAME.scan.json`` (the recording, the model, the
+stretch of track it covered, when): written last, it marks the recording done. ``events.csv``
+combines them all with a ``recording`` column. Only the driver writes; a Ray task reads its
+recording and returns its events and profile.
 """
 
 from __future__ import annotations
@@ -23,13 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from railwatch.atomic import atomic_path, sha256_file
+from railwatch.atomic import atomic_path, atomic_savez, sha256_file
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings import pipeline
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording
-from railwatch.recordings.track_map import EVENTS_SUFFIX, SCAN_SUFFIX
+from railwatch.recordings.track_map import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
 
 #: Ray's memory resource asked per recording task: what one streaming scan needs with room.
 TASK_MEMORY = 2 * 1024**3
@@ -101,10 +102,11 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
         results = ray_imap(_scan_one, todo, args, address=address, memory_bytes=TASK_MEMORY)
     else:
         raise RailwatchError(f"unknown executor {executor!r}: use local or ray")
-    for path, (events_text, info) in results:
+    for path, (events_text, profile, info) in results:
         name = path.stem
         with atomic_path(out / f"{name}{EVENTS_SUFFIX}") as tmp:
             tmp.write_text(events_text)
+        atomic_savez(out / f"{name}{PROFILE_SUFFIX}", profile)
         info.update(model=ident, model_path=str(model), signature=_signature(path),
                     threshold_given=threshold,
                     scanned=datetime.datetime.now().isoformat(timespec="seconds"))
@@ -120,7 +122,8 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
 def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
     """Scanned before by this model, with this threshold, from this very file."""
     info_path = out / f"{path.stem}{SCAN_SUFFIX}"
-    if not info_path.is_file() or not (out / f"{path.stem}{EVENTS_SUFFIX}").is_file():
+    if not info_path.is_file() or not all((out / f"{path.stem}{suffix}").is_file()
+                                          for suffix in (EVENTS_SUFFIX, PROFILE_SUFFIX)):
         return False
     try:
         info = json.loads(info_path.read_text())
@@ -131,14 +134,17 @@ def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
 
 
 def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float | None,
-              detector: pipeline.RecordingModel | None = None) -> tuple[str, dict[str, Any]]:
-    """Detect on one recording: (its events as CSV text, what the scan records of it)."""
+              detector: pipeline.RecordingModel | None = None
+              ) -> tuple[str, dict[str, Any], dict[str, Any]]:
+    """Detect on one recording: (its events as CSV text, its score profile, what the scan
+    records of it)."""
     rm = detector or pipeline.load_recording_model(model)
     lay = Layout.from_dict(layout, "the scan's layout")
     rec = Recording(path, lay)
     started = time.perf_counter()
+    profile = pipeline.Profile()
     result = pipeline.detect(rm.detector, rec, rm.preparation,
-                             rm.threshold if threshold is None else threshold)
+                             rm.threshold if threshold is None else threshold, profile=profile)
     position = np.asarray(result.trace.position, dtype=float)
     finite = position[np.isfinite(position)]
     info = {
@@ -147,7 +153,9 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         "position_first_m": float(finite[0]) if len(finite) else None,
         "position_last_m": float(finite[-1]) if len(finite) else None,
     }
-    return pipeline.events_text(result.events, "csv"), info
+    arrays = {**profile.arrays(), "channels": np.array(lay.channels),
+              "groups": np.array(lay.groups)}
+    return pipeline.events_text(result.events, "csv"), arrays, info
 
 
 def _combine(out: Path, names: list[str]) -> tuple[int, float]:

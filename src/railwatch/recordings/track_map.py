@@ -29,20 +29,29 @@ import os
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
+from railwatch.recordings import fusion
 
 #: What a scan writes per recording beside its events (``<name>.scan.json``).
 SCAN_SUFFIX = ".scan.json"
 EVENTS_SUFFIX = ".events.csv"
+PROFILE_SUFFIX = ".profile.npz"
 #: Columns of the map (one row per location, most confident first).
-MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "passes_seen", "passes_covered",
-              "share", "confidence", "median_score", "channel", "group", "kind_guess",
-              "first_seen", "last_seen")
+MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
+              "passes_seen", "passes_covered", "share", "confidence", "median_score", "channel",
+              "group", "kind_guess", "first_seen", "last_seen")
+#: How the map ranks places: by evidence fused from every pass's scores (default), or by the
+#: share of passes with an event there (the thresholded events alone).
+METHODS = ("fused", "votes")
+#: A pass "sees" a place of the fused map when its own score there is in the top 1 % of its
+#: neighbourhood (``-ln p`` of the local calibration).
+SEEN_EVIDENCE = -math.log(0.01)
 #: Events up to this long (s) look like a spike, longer ones like a local deviation. An event
 #: lasts longer than its defect (the windows around it score too): on context-glr's events of a
 #: development track (stage 5, loud stretches) spikes' events last 0.15 / 0.35 / 0.39 s
@@ -52,6 +61,23 @@ MAX_SCALE_ERROR = 0.005  # |b| within 1 ± 0.5 %: odometry scale errors are a fe
 #: A pass is moved only when at least this many of its events (and two more than as recorded)
 #: repeat on the reference after the move.
 MIN_VOTES = 3
+
+
+@dataclass
+class ScoreProfile:
+    """A recording's per-sample scores along the track (``NAME.profile.npz`` of a scan)."""
+
+    position: NDArray[np.float64]  # (n,) recorded position of each sample, m
+    channel_score: NDArray[np.float32]  # (n, C)
+    channels: tuple[str, ...]
+    groups: tuple[str, ...]
+
+    def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
+        """(n, len(groups)): the highest channel score of each sensor group (the side a defect
+        is felt on swaps with the direction of travel; its group does not)."""
+        g = np.asarray(self.groups)
+        return np.stack([self.channel_score[:, g == name].max(axis=1) if (g == name).any()
+                         else np.full(len(self.position), np.nan) for name in groups], axis=1)
 
 
 @dataclass
@@ -65,6 +91,7 @@ class PassEvents:
     channel: list[str]
     group: list[str]
     covered: tuple[float, float]  # recorded position range of the recording, m
+    profile: ScoreProfile | None = None  # every sample's scores (None: a scan without them)
 
 
 @dataclass(frozen=True)
@@ -73,6 +100,8 @@ class Location:
     position_m: float
     start_m: float
     end_m: float
+    evidence: float  # fused: −log10 of the combined tail (NaN for the votes method)
+    false_per_km: float  # fused: places this strong expected per km by chance (NaN: votes)
     passes_seen: int
     passes_covered: int
     share: float
@@ -130,7 +159,26 @@ def _read_pass(info_path: Path) -> PassEvents:
                              "numbers (an event without a position cannot be mapped)") from None
     return PassEvents(name=name, position=position, score=score, duration_s=duration,
                       channel=[r["channel"] for r in rows], group=[r["group"] for r in rows],
-                      covered=(min(lo, hi), max(lo, hi)))
+                      covered=(min(lo, hi), max(lo, hi)),
+                      profile=_read_profile(info_path.with_name(name + PROFILE_SUFFIX)))
+
+
+def _read_profile(path: Path) -> ScoreProfile | None:
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            profile = ScoreProfile(position=np.asarray(f["position_m"], dtype=float),
+                                   channel_score=np.asarray(f["channel_score"], np.float32),
+                                   channels=tuple(str(c) for c in f["channels"]),
+                                   groups=tuple(str(g) for g in f["groups"]))
+    except (OSError, ValueError, KeyError) as e:
+        raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
+                             "scan again") from None
+    if profile.channel_score.shape != (len(profile.position), len(profile.channels)):
+        raise RailwatchError(f"{path} is damaged (its scores do not match its positions and "
+                             "channels): remove it and its .scan.json, then scan again")
+    return profile
 
 
 # ----------------------------------------------------------------------------- alignment
@@ -293,6 +341,7 @@ def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
             position_m=at, start_m=float(xs[idx].min()), end_m=float(xs[idx].max()),
             passes_seen=len(seen_by), passes_covered=int(covered),
             share=len(seen_by) / covered, confidence=wilson_lower(len(seen_by), covered),
+            evidence=math.nan, false_per_km=math.nan,
             median_score=float(np.median(scores[idx])), channel=channel, group=group,
             kind_guess="spike-like" if np.median(durations[idx]) <= SPIKE_LIKE_S
             else "deviation-like",
@@ -301,10 +350,77 @@ def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     return [Location(rank=i + 1, **r) for i, r in enumerate(found)]
 
 
+def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
+              search_m: float | None = 50.0, list_per_km: float = 1.0,
+              ) -> tuple[list[Location], fusion.Fused]:
+    """The places where the evidence fused from every pass's scores (:mod:`fusion`: per pass
+    calibrated against its own neighbourhood, per sensor group summed over the passes) is
+    higher than passes shifted at random reach ``list_per_km`` times per km; most evident
+    first. The passes are aligned by their events (:func:`align`)."""
+    if tolerance_m <= 0:
+        raise RailwatchError(f"--tolerance-m must be positive, got {tolerance_m:g}")
+    lacking = [p.name for p in passes if p.profile is None]
+    if lacking:
+        raise RailwatchError(f"{lacking[0]} was scanned without its score profile (a scan "
+                             "before railwatch kept them): scan again into a new folder, or "
+                             "map with --method votes")
+    profiles = [p.profile for p in passes if p.profile is not None]
+    groups = tuple(dict.fromkeys(g for pr in profiles for g in pr.groups))
+    transforms = align(passes, tolerance_m, search_m)
+    xs = [a + b * pr.position for pr, (a, b) in zip(profiles, transforms, strict=True)]
+    per_group = [pr.by_group(groups) for pr in profiles]
+    fused = fusion.fuse(xs, per_group, tolerance_m)
+    point = [np.nanmax(pg, axis=1) for pg in per_group]
+    gap = max(1, int(round(tolerance_m / fusion.STEP_M)))
+    events_at = [a + b * p.position for p, (a, b) in zip(passes, transforms, strict=True)]
+    found: list[dict[str, Any]] = []
+    for run in fusion.runs_above(fused.evidence, fused.level(list_per_km), gap):
+        peak = run[np.argmax(fused.evidence[run])]
+        at = fusion.peak_position(fused, xs, point, run)
+        lo, hi = fused.grid[run[0]] - fusion.SLACK_M, fused.grid[run[-1]] + fusion.SLACK_M
+        strength = np.nanmax(fused.calibrated[:, run], axis=1, initial=-np.inf)
+        covering = np.flatnonzero(np.isfinite(fused.calibrated[:, peak]))
+        seen_by = [int(i) for i in covering if strength[i] >= SEEN_EVIDENCE]
+        best = [float(np.max(point[i][(xs[i] >= lo) & (xs[i] <= hi)], initial=-np.inf))
+                for i in covering]
+        durations = [d for i in seen_by for x, d in zip(events_at[i], passes[i].duration_s,
+                                                        strict=True)
+                     if lo - tolerance_m <= x <= hi + tolerance_m]
+        group = groups[int(np.argmax(fused.by_kind[:, peak]))]
+        channels = [_channel_at(profiles[i], xs[i], lo, hi) for i in seen_by]
+        covered = len(covering)
+        found.append(dict(
+            position_m=at, start_m=float(lo), end_m=float(hi),
+            evidence=float(fused.evidence[peak]),
+            false_per_km=float(fused.false_per_km(fused.evidence[peak])[0]),
+            passes_seen=len(seen_by), passes_covered=covered,
+            share=len(seen_by) / covered if covered else 0.0,
+            confidence=wilson_lower(len(seen_by), covered),
+            median_score=float(np.median(best)) if best else math.nan,
+            channel=Counter(channels).most_common(1)[0][0] if channels else "",
+            group=group,
+            kind_guess="" if not durations else "spike-like"
+            if np.median(durations) <= SPIKE_LIKE_S else "deviation-like",
+            first_seen=passes[seen_by[0]].name if seen_by else "",
+            last_seen=passes[seen_by[-1]].name if seen_by else ""))
+    found.sort(key=lambda r: (-r["evidence"], -r["passes_seen"], -r["median_score"],
+                              r["position_m"]))
+    return [Location(rank=i + 1, **r) for i, r in enumerate(found)], fused
+
+
+def _channel_at(profile: ScoreProfile, x: NDArray[np.float64], lo: float, hi: float) -> str:
+    """The channel with the highest score of a pass between map positions ``lo`` and ``hi``."""
+    m = (x >= lo) & (x <= hi)
+    if not m.any():
+        return ""
+    scores = profile.channel_score[m]
+    return profile.channels[int(np.unravel_index(np.argmax(scores), scores.shape)[1])]
+
+
 # ----------------------------------------------------------------------------- outputs
 def write_map(path: str | os.PathLike[str], locations: list[Location]) -> Path:
-    rows = ({k: f"{v:.4f}" if isinstance(v, float) else v for k, v in asdict(loc).items()}
-            for loc in locations)
+    rows = ({k: ("" if math.isnan(v) else f"{v:.4f}") if isinstance(v, float) else v
+             for k, v in asdict(loc).items()} for loc in locations)
     return atomic_csv(path, MAP_FIELDS, rows)
 
 
@@ -326,6 +442,12 @@ def read_truth(path: str | os.PathLike[str]) -> NDArray[np.float64]:
         raise RailwatchError(f"{path}: position_m and length_m must hold numbers of metres") \
             from None
     return np.stack([start, start + length], axis=1).reshape(-1, 2)
+
+
+def reported_fused(locations: list[Location], false_per_km: float = 0.1) -> list[Location]:
+    """The places of a fused map whose evidence passes randomly shifted passes reach at most
+    ``false_per_km`` times per km."""
+    return [loc for loc in locations if loc.false_per_km <= false_per_km]
 
 
 def reported(locations: list[Location], min_share: float = 0.3,

@@ -271,25 +271,40 @@ def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = ""
 
 
 def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: Sequence[Any],
-                     truth_m: NDArray[Any] | None = None) -> Figure:
-    """The track with its locations as bars of confirmation: each location's share of the
-    passes that covered it (bar height), reported ones red, others grey; true defects, where
-    known, as green ticks; the stretch each pass covered below."""
+                     truth_m: NDArray[Any] | None = None, fused: Any = None,
+                     level: float | None = None) -> Figure:
+    """The track with its places: with ``fused`` (a fused map) the evidence along the track
+    and the reporting ``level``, reported places as red dots; otherwise each place's share of
+    the passes that covered it as a bar, reported ones red. True defects, where known, as
+    green ticks; the stretch each pass covered below."""
     fig = Figure(figsize=(13, 4.2), layout="constrained")
     ax, cov = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
     shown = {id(loc) for loc in reported}
-    for loc in locations:
-        colour = "tab:red" if id(loc) in shown else "0.65"
-        ax.vlines(loc.position_m / 1000, 0, loc.share, color=colour, lw=1.6)
+    if fused is not None:
+        ax.plot(fused.grid / 1000, fused.evidence, lw=0.5, color="0.35",
+                label="evidence fused over the passes")
+        if level is not None:
+            ax.axhline(level, color="tab:red", lw=0.8, ls="--", label="reporting level")
+        rep = [loc for loc in locations if id(loc) in shown]
+        ax.plot([loc.position_m / 1000 for loc in rep], [loc.evidence for loc in rep], "o",
+                mfc="none", color="tab:red", ms=6, label="reported place")
+        ax.set_ylabel("evidence (−log10 p)")
+        bottom = -0.04 * max(float(np.nanmax(fused.evidence, initial=1.0)), 1.0)
+    else:
+        for loc in locations:
+            colour = "tab:red" if id(loc) in shown else "0.65"
+            ax.vlines(loc.position_m / 1000, 0, loc.share, color=colour, lw=1.6)
+        ax.set_ylim(-0.08, 1.05)
+        ax.set_ylabel("passes seen / covered")
+        bottom = -0.04
     if truth_m is not None and len(truth_m):
         starts = np.asarray(truth_m, dtype=float).reshape(len(truth_m), -1)[:, 0]
-        ax.plot(starts / 1000, np.full(len(starts), -0.04), "^",
+        ax.plot(starts / 1000, np.full(len(starts), bottom), "^",
                 color="tab:green", ms=5, label="true defect")
+    if fused is not None or (truth_m is not None and len(truth_m)):
         ax.legend(loc="upper right", fontsize=8)
-    ax.set_ylim(-0.08, 1.05)
-    ax.set_ylabel("passes seen / covered")
-    ax.set_title(f"{len(reported)} reported locations (red) of {len(locations)} places with "
-                 f"events, {len(passes)} passes")
+    ax.set_title(f"{len(reported)} reported places (red) of {len(locations)} listed, "
+                 f"{len(passes)} passes")
     ax.grid(alpha=0.3)
     for i, p in enumerate(passes):
         cov.plot(np.array(p.covered) / 1000, [i, i], lw=3, color="tab:blue")

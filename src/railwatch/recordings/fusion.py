@@ -1,0 +1,227 @@
+"""Evidence fused across passes: every pass's score along the track, calibrated against its own
+neighbourhood, summed over the passes at each place, and judged against passes shifted at random.
+
+A defect that a detector finds on 60 % of the passes at its event threshold usually still raises
+the score on most of the others, just not above the threshold. Counting thresholded events
+throws that away; summing each pass's evidence keeps it. Per pass and place:
+
+1. **Profile on the map's grid.** The pass's per-sample scores (``railwatch scan`` keeps them)
+   are laid on the map's frame (the pass's alignment, from the events that repeat) and take, per
+   grid step, the highest score within ``slack_m`` (the alignment's remaining error).
+2. **Local calibration** (an order-statistic CFAR, as radar does): the share ``p`` of the same
+   pass's grid values within ``window_m`` on either side, outside a guard band of ``guard_m``,
+   that reach the value here. A loud stretch of track raises a pass's scores over hundreds of
+   metres and so raises its neighbourhood with it; a defect stands out of its own. Nothing is
+   learned and nothing depends on the detector's units: any score that is higher at a defect
+   will do.
+3. **Combination** (Fisher's method): ``S = Σ −ln p`` over the passes that covered the place,
+   whose tail under independent nulls is that of a Gamma(k, 1); the evidence is
+   ``−log10`` of that tail.
+4. **What is significant** is measured, not assumed (the grid values are not independent): the
+   same sum with each pass's calibrated profile shifted by a random offset along its own
+   stretch of track (a real defect then lines up with nothing) gives the peaks that passes
+   without a repeating defect reach; the expected number of false places per km at an evidence
+   level is the count of such peaks above it per km and round.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import maximum_filter1d
+from scipy.special import gammaincc
+
+#: Grid step of the map (m): finer than a sample at 100 Hz and 25 m/s.
+STEP_M = 0.25
+#: Defaults of the calibration and of the null (m, rounds).
+SLACK_M = 1.0
+WINDOW_M = 100.0
+GUARD_M = 10.0
+ROUNDS = 40
+#: A shift moves a pass by at least this much (m), so that a defect cannot meet itself.
+MIN_SHIFT_M = 100.0
+
+
+@dataclass
+class Fused:
+    """The fused evidence along the map's grid."""
+
+    grid: NDArray[np.float64]  # (G,) map positions, m
+    evidence: NDArray[np.float64]  # (G,) −log10 of the combined tail, 0 where nothing covered
+    covered: NDArray[np.int64]  # (G,) passes that covered each grid point
+    by_kind: NDArray[np.float64]  # (K, G) the evidence of each kind (sensor group) alone
+    calibrated: NDArray[np.float64]  # (P, G) each pass's −ln p, its strongest kind (NaN where
+    # it did not cover)
+    null_levels: NDArray[np.float64]  # evidence levels at which the null was counted
+    null_counts: NDArray[np.float64]  # stretches above each level, over all shifted rounds
+    null_km: float  # km of track × rounds behind null_counts
+
+    def false_per_km(self, evidence: NDArray[np.float64] | float) -> NDArray[np.float64]:
+        """Expected places per km at least this strong among passes without a repeating
+        defect (from the shifted rounds, at the highest counted level not above it; half a
+        place where none reached it)."""
+        level = np.atleast_1d(np.asarray(evidence, dtype=float))
+        i = np.clip(np.searchsorted(self.null_levels, level, side="right") - 1, 0,
+                    len(self.null_levels) - 1)
+        return np.maximum(self.null_counts[i], 0.5) / max(self.null_km, 1e-9)
+
+    def level(self, false_per_km: float) -> float:
+        """The lowest counted evidence level above which at most ``false_per_km`` places per
+        km arise by chance."""
+        ok = np.flatnonzero(self.null_counts <= false_per_km * self.null_km)
+        return float(self.null_levels[ok[0]]) if len(ok) else float(self.null_levels[-1])
+
+
+#: Evidence levels (−log10 p) at which the null's stretches are counted.
+NULL_LEVELS = np.round(np.arange(2.0, 40.0001, 0.05), 2)
+
+
+def grid_profile(x: NDArray[np.float64], score: NDArray[np.float64], lo: float, n: int,
+                 step: float = STEP_M, slack: float = SLACK_M) -> NDArray[np.float64]:
+    """The highest score within ``slack`` of each grid point ``lo + i·step`` (NaN outside the
+    stretch the samples cover)."""
+    ok = np.isfinite(x) & np.isfinite(score)
+    x, score = x[ok], score[ok]
+    out = np.full(n, -np.inf)
+    if not len(x):
+        return np.full(n, np.nan)
+    idx = np.clip(np.round((x - lo) / step).astype(np.int64), 0, n - 1)
+    np.maximum.at(out, idx, score)
+    out = maximum_filter1d(out, size=2 * int(round(slack / step)) + 1, mode="nearest")
+    first, last = idx.min(), idx.max()
+    out[:first], out[last + 1:] = np.nan, np.nan
+    return out
+
+
+def local_tail(profile: NDArray[np.float64], half: int, guard: int,
+               block: int = 2048) -> NDArray[np.float64]:
+    """Per point, the share of the finite values within ``half`` points on either side (outside
+    ``guard`` points) that are at least as high, counting the point itself: (1 + ties and
+    above) / (1 + neighbours). NaN where the profile is NaN or has no neighbours."""
+    n = len(profile)
+    pad = np.concatenate([np.full(half, np.nan), profile, np.full(half, np.nan)])
+    offsets = np.r_[np.arange(-half, -guard), np.arange(guard + 1, half + 1)]
+    out = np.full(n, np.nan)
+    for start in range(0, n, block):
+        centre = np.arange(start, min(start + block, n))
+        here = profile[centre]
+        around = pad[centre[:, None] + half + offsets[None, :]]
+        valid = np.isfinite(around)
+        higher = (around >= here[:, None]) & valid
+        count = valid.sum(axis=1)
+        p = (1 + higher.sum(axis=1)) / (1 + count)
+        p[~np.isfinite(here) | (count == 0)] = np.nan
+        out[centre] = p
+    return out
+
+
+def combine(calibrated: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Fisher's combination of the passes' −ln p (P, G): −log10 of the Gamma(k, 1) tail of
+    their sum over the k passes that covered each point; and k."""
+    ok = np.isfinite(calibrated)
+    k = ok.sum(axis=0)
+    total = np.where(ok, calibrated, 0.0).sum(axis=0)
+    with np.errstate(divide="ignore"):
+        tail = np.where(k > 0, gammaincc(np.maximum(k, 1), total), 1.0)
+        evidence = -np.log10(np.maximum(tail, 1e-300))
+    return evidence, k
+
+
+def runs_above(evidence: NDArray[np.float64], level: float, gap: int) -> list[NDArray[np.int64]]:
+    """Grid indices of each stretch where ``evidence`` exceeds ``level``, stretches closer than
+    ``gap`` points merged."""
+    hits = np.flatnonzero(evidence > level)
+    if not len(hits):
+        return []
+    return np.split(hits, np.flatnonzero(np.diff(hits) > gap) + 1)
+
+
+def peak_position(fused: Fused, xs: list[NDArray[np.float64]],
+                  scores: list[NDArray[np.float64]], run: NDArray[np.int64],
+                  seen: float = -np.log(0.01)) -> float:
+    """Where a stretch of high evidence peaks: the median, over the passes whose own evidence
+    there reaches ``seen`` (−ln p; all covering passes if none does), of the position of each
+    pass's highest raw score on the stretch (the calibrated profiles are flat-topped: a max
+    filter and a saturating rank)."""
+    lo, hi = fused.grid[run[0]] - SLACK_M, fused.grid[run[-1]] + SLACK_M
+    strength = np.nanmax(fused.calibrated[:, run], axis=1, initial=-np.inf)
+    chosen = np.flatnonzero(strength >= seen)
+    if not len(chosen):
+        chosen = np.flatnonzero(np.isfinite(strength))
+    at = []
+    for i in chosen:
+        m = (xs[i] >= lo) & (xs[i] <= hi) & np.isfinite(scores[i])
+        if m.any():
+            at.append(float(xs[i][m][np.argmax(scores[i][m])]))
+    return float(np.median(at)) if at else float(fused.grid[run[np.argmax(fused.evidence[run])]])
+
+
+def count_runs(evidence: NDArray[np.float64], levels: NDArray[np.float64],
+               gap: int) -> NDArray[np.int64]:
+    """For each of the ascending ``levels``, the stretches where ``evidence`` exceeds it
+    (stretches closer than ``gap`` points merged, as :func:`runs_above`)."""
+    hits = np.flatnonzero(evidence > levels[0])
+    values = evidence[hits]
+    counts = np.zeros(len(levels), dtype=np.int64)
+    for j, level in enumerate(levels):
+        keep = hits[values > level]
+        if not len(keep):
+            break
+        counts[j] = 1 + int((np.diff(keep) > gap).sum())
+    return counts
+
+
+def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
+         tolerance_m: float = 2.0, step_m: float = STEP_M, slack_m: float = SLACK_M,
+         window_m: float = WINDOW_M, guard_m: float = GUARD_M, rounds: int = ROUNDS,
+         seed: int = 0) -> Fused:
+    """The fused evidence of passes whose per-sample scores ``scores[i]`` ((n,) or (n, K): K
+    kinds of evidence, such as sensor groups, each fused on its own and the strongest taken)
+    lie at map positions ``xs[i]`` (module docstring)."""
+    finite = [x[np.isfinite(x)] for x in xs]
+    lo = min((float(f.min()) for f in finite if len(f)), default=0.0)
+    hi = max((float(f.max()) for f in finite if len(f)), default=0.0)
+    n = int(np.floor((hi - lo) / step_m)) + 1
+    grid = (lo + step_m * np.arange(n)).astype(np.float64)
+    half, guard = int(round(window_m / step_m)), int(round(guard_m / step_m))
+    scores = [np.asarray(s, dtype=float).reshape(len(s), -1) for s in scores]
+    kinds = scores[0].shape[1] if scores else 1
+    calibrated = np.full((kinds, len(xs), n), np.nan)
+    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        for k in range(kinds):
+            with np.errstate(divide="ignore"):
+                calibrated[k, i] = -np.log(local_tail(
+                    grid_profile(x, s[:, k], lo, n, step_m, slack_m), half, guard))
+
+    def by_kind(cal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        both = [combine(c) for c in cal]
+        return np.array([e for e, _ in both]), both[0][1]
+
+    kind_evidence, covered = by_kind(calibrated)
+    # The null: each pass shifted along its own covered stretch (circularly), every round.
+    rng = np.random.default_rng(seed)
+    gap = max(1, int(round(tolerance_m / step_m)))
+    spans = [np.flatnonzero(np.isfinite(c)) for c in calibrated[0]]
+    min_shift = int(round(MIN_SHIFT_M / step_m))
+    counts = np.zeros(len(NULL_LEVELS))
+    km = 0.0
+    for _ in range(rounds):
+        shifted = np.full_like(calibrated, np.nan)
+        for i, idx in enumerate(spans):
+            if not len(idx):
+                continue
+            lo_i, hi_i = idx[0], idx[-1] + 1
+            length = hi_i - lo_i
+            shift = int(rng.integers(min_shift, length - min_shift)) \
+                if length > 2 * min_shift else int(rng.integers(0, max(length, 1)))
+            shifted[:, i, lo_i:hi_i] = np.roll(calibrated[:, i, lo_i:hi_i], shift, axis=-1)
+        null, _ = by_kind(shifted)
+        counts += count_runs(null.max(axis=0), NULL_LEVELS, gap)
+        km += float((covered > 0).sum()) * step_m / 1000.0
+    with np.errstate(invalid="ignore"):
+        strongest = np.fmax.reduce(calibrated, axis=0)  # NaN only where no kind covered
+    return Fused(grid=grid, evidence=kind_evidence.max(axis=0), covered=covered,
+                 by_kind=kind_evidence, calibrated=strongest,
+                 null_levels=NULL_LEVELS, null_counts=counts, null_km=km)
