@@ -302,7 +302,7 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
         ax.plot(starts / 1000, np.full(len(starts), bottom), "^",
                 color="tab:green", ms=5, label="true defect")
     if fused is not None or (truth_m is not None and len(truth_m)):
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)  # beside the track
     ax.set_title(f"{len(reported)} reported places (red) of {len(locations)} listed, "
                  f"{len(passes)} passes")
     ax.grid(alpha=0.3)
