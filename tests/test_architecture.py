@@ -23,7 +23,8 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "railwatch.mapping_files", "railwatch.machine", "railwatch.parallel"),
     ("railwatch.windows", "railwatch.recordings.layout"),  # file formats
     ("railwatch.recordings", "railwatch.recordings.readers",
-     "railwatch.recordings.prepare", "railwatch.scoring"),  # recordings; the scoring library
+     "railwatch.recordings.prepare", "railwatch.recordings.fusion",
+     "railwatch.scoring"),  # recordings; the scoring library; evidence fused across passes
     ("railwatch.synthetic",),  # synthetic windows and runs (runs written as recordings)
     ("railwatch.detectors",),
     ("railwatch.evaluation", "railwatch.evaluation.metrics"),
