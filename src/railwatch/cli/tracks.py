@@ -11,7 +11,9 @@ import click
 from railwatch.cli.common import info, writable_file
 from railwatch.errors import RailwatchError
 
-METHOD_CHOICES = ("fused", "votes")  # recordings.track_map.METHODS (kept torch- and numpy-free)
+#: How track-map ranks places: fused_map (evidence from every pass's scores) or track_map (the
+#: share of passes with an event), both in recordings.track_map.
+METHOD_CHOICES = ("fused", "votes")
 
 
 def expand_recordings(items: tuple[str, ...]) -> list[Path]:

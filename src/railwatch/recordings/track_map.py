@@ -1,5 +1,7 @@
-"""From repeated passes to a track map: events aligned across passes, clustered by position,
-ranked by how many of the passes that covered a place saw something there.
+"""From repeated passes to a track map: passes aligned by the events that repeat, then places
+ranked either by the evidence fused from every pass's scores (:func:`fused_map`, the default:
+:mod:`railwatch.recordings.fusion`) or by how many of the passes that covered a place had an
+event there (:func:`track_map`, the votes, described below).
 
 A real defect shows up at the same track position on pass after pass (at different speeds and
 noise levels); a false event does not. The map turns the events of many recordings of one line
@@ -46,9 +48,6 @@ PROFILE_SUFFIX = ".profile.npz"
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
               "passes_seen", "passes_covered", "share", "confidence", "median_score", "channel",
               "group", "kind_guess", "first_seen", "last_seen")
-#: How the map ranks places: by evidence fused from every pass's scores (default), or by the
-#: share of passes with an event there (the thresholded events alone).
-METHODS = ("fused", "votes")
 #: A pass "sees" a place of the fused map when its own score there is in the top 1 % of its
 #: neighbourhood (``-ln p`` of the local calibration).
 SEEN_EVIDENCE = -math.log(0.01)
@@ -387,7 +386,7 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
                                                         strict=True)
                      if lo - tolerance_m <= x <= hi + tolerance_m]
         group = groups[int(np.argmax(fused.by_kind[:, peak]))]
-        channels = [_channel_at(profiles[i], xs[i], lo, hi) for i in seen_by]
+        channels = [_channel_at(profiles[i], xs[i], lo, hi, group) for i in seen_by]
         covered = len(covering)
         found.append(dict(
             position_m=at, start_m=float(lo), end_m=float(hi),
@@ -408,13 +407,16 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     return [Location(rank=i + 1, **r) for i, r in enumerate(found)], fused
 
 
-def _channel_at(profile: ScoreProfile, x: NDArray[np.float64], lo: float, hi: float) -> str:
-    """The channel with the highest score of a pass between map positions ``lo`` and ``hi``."""
+def _channel_at(profile: ScoreProfile, x: NDArray[np.float64], lo: float, hi: float,
+                group: str) -> str:
+    """The channel of ``group`` with the highest score of a pass between map positions ``lo``
+    and ``hi``."""
     m = (x >= lo) & (x <= hi)
-    if not m.any():
+    mine = np.flatnonzero(np.asarray(profile.groups) == group)
+    if not m.any() or not len(mine):
         return ""
-    scores = profile.channel_score[m]
-    return profile.channels[int(np.unravel_index(np.argmax(scores), scores.shape)[1])]
+    scores = profile.channel_score[m][:, mine]
+    return profile.channels[mine[int(np.unravel_index(np.argmax(scores), scores.shape)[1])]]
 
 
 # ----------------------------------------------------------------------------- outputs
