@@ -42,6 +42,9 @@ GUARD_M = 10.0
 ROUNDS = 40
 #: A shift moves a pass by at least this much (m), so that a defect cannot meet itself.
 MIN_SHIFT_M = 100.0
+#: A pass "sees" a place when its own value there is in the top 1 % of its neighbourhood
+#: (−ln p of the local calibration).
+SEEN = -float(np.log(0.01))
 
 
 @dataclass
@@ -140,7 +143,7 @@ def runs_above(evidence: NDArray[np.float64], level: float, gap: int) -> list[ND
 
 def peak_position(fused: Fused, xs: list[NDArray[np.float64]],
                   scores: list[NDArray[np.float64]], run: NDArray[np.int64],
-                  seen: float = -np.log(0.01)) -> float:
+                  seen: float = SEEN) -> float:
     """Where a stretch of high evidence peaks: the median, over the passes whose own evidence
     there reaches ``seen`` (−ln p; all covering passes if none does), of the position of each
     pass's highest raw score on the stretch (the calibrated profiles are flat-topped: a max
@@ -206,7 +209,6 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
     spans = [np.flatnonzero(np.isfinite(c)) for c in calibrated[0]]
     min_shift = int(round(MIN_SHIFT_M / step_m))
     counts = np.zeros(len(NULL_LEVELS))
-    km = 0.0
     for _ in range(rounds):
         shifted = np.full_like(calibrated, np.nan)
         for i, idx in enumerate(spans):
@@ -219,7 +221,7 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
             shifted[:, i, lo_i:hi_i] = np.roll(calibrated[:, i, lo_i:hi_i], shift, axis=-1)
         null, _ = by_kind(shifted)
         counts += count_runs(null.max(axis=0), NULL_LEVELS, gap)
-        km += float((covered > 0).sum()) * step_m / 1000.0
+    km = rounds * float((covered > 0).sum()) * step_m / 1000.0
     with np.errstate(invalid="ignore"):
         strongest = np.fmax.reduce(calibrated, axis=0)  # NaN only where no kind covered
     return Fused(grid=grid, evidence=kind_evidence.max(axis=0), covered=covered,

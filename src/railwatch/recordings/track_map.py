@@ -48,9 +48,6 @@ PROFILE_SUFFIX = ".profile.npz"
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
               "passes_seen", "passes_covered", "share", "confidence", "median_score", "channel",
               "group", "kind_guess", "first_seen", "last_seen")
-#: A pass "sees" a place of the fused map when its own score there is in the top 1 % of its
-#: neighbourhood (``-ln p`` of the local calibration).
-SEEN_EVIDENCE = -math.log(0.01)
 #: Events up to this long (s) look like a spike, longer ones like a local deviation. An event
 #: lasts longer than its defect (the windows around it score too): on context-glr's events of a
 #: development track (stage 5, loud stretches) spikes' events last 0.15 / 0.35 / 0.39 s
@@ -379,7 +376,7 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
         lo, hi = fused.grid[run[0]] - fusion.SLACK_M, fused.grid[run[-1]] + fusion.SLACK_M
         strength = np.nanmax(fused.calibrated[:, run], axis=1, initial=-np.inf)
         covering = np.flatnonzero(np.isfinite(fused.calibrated[:, peak]))
-        seen_by = [int(i) for i in covering if strength[i] >= SEEN_EVIDENCE]
+        seen_by = [int(i) for i in covering if strength[i] >= fusion.SEEN]
         best = [float(np.max(point[i][(xs[i] >= lo) & (xs[i] <= hi)], initial=-np.inf))
                 for i in covering]
         durations = [d for i in seen_by for x, d in zip(events_at[i], passes[i].duration_s,
