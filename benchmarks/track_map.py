@@ -41,7 +41,8 @@ from recordings import railwatch  # noqa: E402  (benchmarks/recordings.py, besid
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
          "stage 8": ["--stage", "8", "--loud-stretches"]}
 #: Which detectors run on which nuisance (aft-attention finds few defects per pass: stage 5 only).
-RUNS = (("stage 5", "context-glr"), ("stage 5", "aft-attention"), ("stage 8", "context-glr"))
+RUNS = (("stage 5", "context-glr"), ("stage 5", "aft-attention"), ("stage 8", "context-glr"),
+        ("stage 5", "matched-filter"), ("stage 8", "matched-filter"))
 ODOMETRIES = {"odometry alone": None, "GNSS-aided": (1.0, 0.0001, 0.1)}
 SEEDS = {"test": 11, "dev": 12}
 PASSES, TRAIN = 12, 2
