@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-track-map-loss bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -66,6 +66,9 @@ bench-recordings-nuisance: $(STAMP)  ## train on two runs, detect on a third: st
 
 bench-track-map: $(STAMP)  ## the track map of 10-km tracks against 1, 2, 5, 10 passes; scan throughput (~40 min)
 	$(BIN)/python benchmarks/track_map.py --work runs/bench-track-map
+
+bench-track-map-loss: $(STAMP)  ## where the track map loses defects: oracle, per pass, alignment (~10 min, after bench-track-map)
+	$(BIN)/python benchmarks/track_map_loss.py --work runs/bench-track-map
 
 bench-reliability: $(STAMP)  ## the fault and fuzz tests, counted into docs/results/reliability.md
 	$(BIN)/python benchmarks/reliability.py
