@@ -64,17 +64,21 @@ def track(work: Path, kind: str, role: str) -> Path:
     return folder
 
 
-def scanned(folder: Path, detector: str, factor: float = 1.0) -> Path:
-    """Train ``detector`` on the first passes, scan the others with ``factor`` × the model's
-    event threshold; the scan folder."""
+def scanned(folder: Path, detector: str, factor: float = 1.0, settings: tuple[str, ...] = (),
+            label: str | None = None) -> Path:
+    """Train ``detector`` (with ``--set`` ``settings``) on the first passes, scan the others
+    with ``factor`` × the model's event threshold; the scan folder. ``label`` names the model
+    and scan folders (default: the detector)."""
     from railwatch.recordings.pipeline import load_recording_model
 
-    model = folder / f"model-{detector}"
+    label = label or detector
+    model = folder / f"model-{label}"
     if not (model / "detector.json").exists():
         train = [str(folder / f"pass{i:02d}.parquet") for i in range(1, TRAIN + 1)]
-        railwatch("train", "--detector", detector, "--recordings", *train, "--layout",
+        sets = [arg for setting in settings for arg in ("--set", setting)]
+        railwatch("train", "--detector", detector, *sets, "--recordings", *train, "--layout",
                   str(folder / "layout.toml"), "--out", str(model))
-    out = folder / (f"scan-{detector}" if factor == 1.0 else f"scan-{detector}-x{factor:g}")
+    out = folder / (f"scan-{label}" if factor == 1.0 else f"scan-{label}-x{factor:g}")
     test = [str(folder / f"pass{i:02d}.parquet") for i in range(TRAIN + 1, PASSES + 1)]
     lower = [] if factor == 1.0 else [
         "--threshold", repr(factor * load_recording_model(model).threshold)]
@@ -181,9 +185,10 @@ def throughput(folder: Path, detector: str) -> dict[str, float]:
 
 
 def with_odometry(scan: Path, folder: Path, kind: str, role: str,
-                  odometry: tuple[float, float, float] | None) -> Path:
+                  odometry: tuple[float, float, float] | None, suffix: str = "-gnss") -> Path:
     """The scan folder ``scan`` with every event's position read from another odometry of the
-    same passes (None: as scanned)."""
+    same passes (None: as scanned), written beside it with ``suffix``; an odometry without
+    errors, (0, 0, 0), gives the true positions."""
     import csv
     import json
 
@@ -193,7 +198,7 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
 
     if odometry is None:
         return scan
-    out = scan.with_name(scan.name + "-gnss")
+    out = scan.with_name(scan.name + suffix)
     out.mkdir(exist_ok=True)
     stage = int(KINDS[kind][1])
     track_ = make_track(10_000.0, 40, seed=SEEDS[role], stage=stage, loud_stretches=True)

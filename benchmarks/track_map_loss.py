@@ -11,8 +11,9 @@ crossing of a defect by a pass:
    the crossing is in the top 1 % of the same pass and channel's scores within ±100 m outside
    ±10 m (the fused map's calibration, on the raw samples);
 3. **What the map makes of it**: recall and false places per km of the fused map from 5 and 10
-   passes with positions as aligned from the events (odometry alone, the default), as recorded
-   by a GNSS-aided odometry, and at their true positions (no alignment error at all).
+   passes with positions as recorded by odometry alone (the default) and by a GNSS-aided
+   odometry, and at their true positions (an odometry without errors), each aligned by
+   `track-map` as usual.
 
 The matched filter is measured twice: with its default ridge (0.1) and with the ridge it had
 before (1e-6), to show what the ridge is for. Run after `benchmarks/track_map.py` (which
@@ -36,29 +37,18 @@ import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this s
 DETECTORS = {"stage 5": ("context-glr", "aft-attention", "matched-filter",
                          "matched-filter ridge 1e-6"),
              "stage 8": ("context-glr", "matched-filter", "matched-filter ridge 1e-6")}
+#: An odometry without errors: the passes' true positions.
+TRUE_POSITIONS = (0.0, 0.0, 0.0)
 FS = 2000.0
 RATE = 100  # the model's rate
 
 
 def scan_of(folder: Path, detector: str) -> Path:
-    """The detector's scan of the development track (made by the track-map benchmark; the
-    old-ridge matched filter trained and scanned here)."""
+    """The detector's scan of the development track at the track-map benchmark's lowest
+    threshold (made there; the old-ridge matched filter trained and scanned here)."""
     if detector == "matched-filter ridge 1e-6":
-        from railwatch.recordings.pipeline import load_recording_model
-
-        model = folder / "model-matched-filter-ridge1e-6"
-        low = min(bench.FACTORS)
-        out = folder / f"scan-matched-filter-ridge1e-6-x{low:g}"
-        if not (model / "detector.json").exists():
-            bench.railwatch("train", "--detector", "matched-filter", "--set", "ridge=1e-6",
-                            "--recordings", str(folder / "pass01.parquet"),
-                            str(folder / "pass02.parquet"), "--layout",
-                            str(folder / "layout.toml"), "--out", str(model))
-        test = [str(folder / f"pass{i:02d}.parquet") for i in range(3, bench.PASSES + 1)]
-        threshold = low * load_recording_model(model).threshold
-        bench.railwatch("scan", "--model", str(model), "--recordings", *test, "--out", str(out),
-                        "--threshold", repr(threshold))
-        return out
+        return bench.scanned(folder, "matched-filter", min(bench.FACTORS), ("ridge=1e-6",),
+                             "matched-filter-ridge1e-6")
     return bench.scanned(folder, detector, min(bench.FACTORS))
 
 
@@ -133,40 +123,6 @@ def top_share(scan: Path, name: str, p) -> list[bool]:  # type: ignore[no-untype
     return out
 
 
-def map_with_true_positions(scan: Path, kind: str, k: int) -> tuple[float, float]:
-    """Recall and false places per km of the fused map of the first ``k`` passes laid at their
-    true positions (no alignment, no odometry error)."""
-    import railwatch.synthetic.track as T
-    from railwatch.recordings import fusion
-    from railwatch.recordings import track_map as tm
-
-    folder = scan.parent
-    passes = tm.read_scan(scan)[:k]
-    truth = tm.read_truth(folder / "track.defects.csv")
-    track = T.make_track(10_000.0, 40, seed=bench.SEEDS["dev"], stage=int(bench.KINDS[kind][1]),
-                         loud_stretches=True)
-    profiles = [p.profile for p in passes if p.profile is not None]
-    groups = tuple(dict.fromkeys(g for pr in profiles for g in pr.groups))
-    xs = []
-    for p in passes:
-        i = int(p.name[4:]) - 1
-        truth_pass = T.synthesize_pass(track, seed=bench.SEEDS["dev"] * 1000 + i + 1, fs=RATE,
-                                       direction=1 if i % 2 == 0 else -1)
-        with np.load(scan / f"{p.name}.profile.npz") as f:
-            xs.append(np.interp(f["time_s"], truth_pass.run.time, truth_pass.true_position))
-    per_group = [pr.by_group(groups) for pr in profiles]
-    fused = fusion.fuse(xs, per_group)
-    point = [np.nanmax(pg, axis=1) for pg in per_group]
-    gap = int(round(2.0 / fusion.STEP_M))
-    found = np.array([fusion.peak_position(fused, xs, point, run)
-                      for run in fusion.runs_above(fused.evidence, fused.level(0.1), gap)])
-    lo, hi = tm.covered_range(passes)
-    covered = tm.on_stretch(truth, lo, hi)
-    hit = [bool(((found >= s - 2) & (found <= e + 2)).any()) for s, e in covered]
-    false = sum(not ((x >= truth[:, 0] - 2) & (x <= truth[:, 1] + 2)).any() for x in found)
-    return float(np.mean(hit)), false / ((hi - lo) / 1000)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
@@ -178,7 +134,7 @@ def main() -> None:
     per_pass = ["| nuisance | crossings | oracle SNR ≥ 5 | oracle SNR, median | "
                 + " | ".join(f"top 1 %: {d}" for d in DETECTORS["stage 5"]) + " |",
                 "|---|---|---|---|" + "---|" * len(DETECTORS["stage 5"])]
-    maps = ["| nuisance | detector | passes | aligned from events (odometry alone) | "
+    maps = ["| nuisance | detector | passes | odometry alone | "
             "GNSS-aided positions | true positions |", "|---|---|---|---|---|---|"]
     for kind, detectors in DETECTORS.items():
         folder = bench.track(args.work, kind, "dev")
@@ -194,18 +150,15 @@ def main() -> None:
                         f"{np.median(snr):.0f} | " + " | ".join(cells) + " |")
         print(per_pass[-1], flush=True)
         for d in detectors:
-            gnss = bench.with_odometry(bench.above(scans[d], 1.0, min(bench.FACTORS)), folder,
-                                       kind, "dev", bench.ODOMETRIES["GNSS-aided"])
-            aligned = bench.curve(bench.above(scans[d], 1.0, min(bench.FACTORS)),
-                                  folder / "track.defects.csv", None)
-            gnss_rows = bench.curve(gnss, folder / "track.defects.csv", None)
+            events = bench.above(scans[d], 1.0, min(bench.FACTORS))
+            curves = [bench.curve(placed, folder / "track.defects.csv", None) for placed in (
+                events,
+                bench.with_odometry(events, folder, kind, "dev", bench.ODOMETRIES["GNSS-aided"]),
+                bench.with_odometry(events, folder, kind, "dev", TRUE_POSITIONS, "-true"))]
             for k in (5, 10):
-                a = next(r for r in aligned if r["passes"] == k)
-                g = next(r for r in gnss_rows if r["passes"] == k)
-                rt, ft = map_with_true_positions(scans[d], kind, k)
-                maps.append(f"| {kind} | {d} | {k} | {a['recall']:.0%} / {a['false_per_km']:.1f}"
-                            f" | {g['recall']:.0%} / {g['false_per_km']:.1f} | {rt:.0%} / "
-                            f"{ft:.1f} |")
+                cells = [next(r for r in rows if r["passes"] == k) for rows in curves]
+                maps.append(f"| {kind} | {d} | {k} | " + " | ".join(
+                    f"{c['recall']:.0%} / {c['false_per_km']:.1f}" for c in cells) + " |")
                 print(maps[-1], flush=True)
     lines = [
         "# Where the track map loses defects",

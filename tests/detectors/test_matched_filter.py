@@ -116,12 +116,9 @@ def band_limited(n: int, seed: int, spike: bool) -> tuple[np.ndarray, np.ndarray
     if spike:
         for i in range(n):
             raw[i, at[i]:at[i] + 20] += 1.5 * rng.choice([-1.0, 1.0])
-    out = []
-    for series in raw:
-        resampler = Resampler(1, 20, 1)
-        block = series[:, None].astype(np.float32)
-        out.append(np.concatenate([resampler.push(block), resampler.flush()])[:200])
-    return np.stack(out), at // 20
+    resampler = Resampler(1, 20, n)  # every window a channel: one pass of the filter
+    out = np.concatenate([resampler.push(raw.T.astype(np.float32)), resampler.flush()])
+    return out[:200].T[:, :, None].copy(), at // 20
 
 
 def test_ridge_keeps_the_predictor_stable_on_resampled_recordings() -> None:
@@ -140,4 +137,4 @@ def test_ridge_keeps_the_predictor_stable_on_resampled_recordings() -> None:
             for i, k in enumerate(at)]))
 
     default = top_share(create("matched-filter").config.ridge)
-    assert default >= 0.92 and default >= top_share(1e-6) + 0.08  # measured 0.96 against 0.83
+    assert default >= 0.92 and default >= top_share(1e-6) + 0.08  # measured 0.96 against 0.82
