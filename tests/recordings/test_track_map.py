@@ -74,13 +74,36 @@ def test_nothing_moves_without_evidence() -> None:
     assert tm.fit_transform(np.array([300.0, 711.0]), ref, 2.0, 50.0) == (0.0, 1.0)
 
 
+def test_passes_at_their_true_positions_stay_there_among_many_false_events() -> None:
+    """A few repeating events among many false ones: some slope and offset always gains a few
+    chance pairs; taking it moved passes recorded at their true positions by metres."""
+    truth = np.sort(np.random.default_rng(6).uniform(50, 9950, 40))
+    for seed in range(3):
+        passes = passes_over(truth, 5, 0.3, 5.0, 10_000, seed=seed)
+        for (a, b), p in zip(tm.align(passes), passes, strict=True):
+            moved = a + b * np.array(p.covered) - np.array(p.covered)
+            assert np.abs(moved).max() < 1.0, (seed, p.name, a, b)
+
+
+def test_one_wrong_odometer_does_not_move_the_map() -> None:
+    """The map's frame is the median of the passes' odometry: one pass with a wrong wheel
+    radius (0.3 %: 30 m at the far end) among five good ones leaves it where they are."""
+    truth = np.sort(np.random.default_rng(7).uniform(50, 9950, 40))
+    offsets = [(0.0, 1.0)] * 4 + [(0.0, 1.003)]
+    passes = passes_over(truth, 5, 0.8, 1.0, 10_000, seed=1, offsets=offsets)
+    for (a, b), p in zip(tm.align(passes), passes, strict=True):
+        far = a + b * p.position[np.argmax(p.position)]
+        x = np.sort(truth)[np.argmin(np.abs(np.sort(truth) - far))]
+        assert abs(far - x) < 1.0, (p.name, a, b)
+
+
 def test_map_of_passes_with_odometry_errors_finds_the_defects(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     truth = np.sort(np.random.default_rng(3).uniform(50, 9950, 40))
-    # Offsets of 8 m and scale errors of 0.05 % (5 m at the far end) that average out over the
-    # passes: the map's frame (the mean of the passes') is then the track's.
-    a = np.random.default_rng(4).normal(0, 8, 10)
-    e = np.random.default_rng(5).normal(0, 5e-4, 10)
-    offsets = [(float(x), 1 + float(y)) for x, y in zip(a - a.mean(), e - e.mean(), strict=True)]
+    # Offsets of 8 m and scale errors of 0.05 % (5 m at the far end), in pairs of opposite
+    # sign: the map's frame (the median of the passes' odometry) is then the track's.
+    a = np.random.default_rng(4).normal(0, 8, 5)
+    e = np.random.default_rng(5).normal(0, 5e-4, 5)
+    offsets = [(float(x), 1 + float(y)) for x, y in zip(np.r_[a, -a], np.r_[e, -e], strict=True)]
     passes = passes_over(truth, 10, 0.7, 2.0, 10_000, offsets=offsets)
     got = tm.reported(tm.track_map(passes, tolerance_m=2.0), 0.3, len(passes))
     s = tm.score_locations(got, truth, 10_000, 2.0)

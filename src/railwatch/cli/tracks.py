@@ -97,12 +97,12 @@ def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, .
 @click.command("track-map", epilog="""\b
 MAP.csv: one row per place (fused: every place that chance gives at most once per km, the
 reported ones and those just below), most evident first: rank, position_m (the map's frame: the
-mean of the passes' odometry), start_m, end_m, evidence (-log10 of the fused tail),
+median of the passes' odometry), start_m, end_m, evidence (-log10 of the fused tail),
 false_per_km (how many places this strong passes without a repeating defect give per km: the
-map's own false-alarm estimate), passes_seen (passes whose score there is in the top 1 % of their
-neighbourhood), passes_covered, share, confidence (95 % lower bound of the share),
-median_score, channel, group, kind_guess (spike-like or deviation-like, from the events'
-duration), first_seen, last_seen (recording names).
+map's own false-alarm estimate), passes_seen (passes whose score there, measured against its
+neighbourhood, is in the top 1 % of the pass), passes_covered, share, confidence (95 % lower
+bound of the share), median_score, channel, group, kind_guess (spike-like or deviation-like,
+from the events' duration), first_seen, last_seen (recording names).
 \b
 --method votes ranks the places where events cluster by the share of passes with an event
 (evidence and false_per_km empty); it needs only the events.""")
