@@ -187,13 +187,14 @@ def _nearest(x: NDArray[np.float64], ref: NDArray[np.float64]) -> NDArray[np.flo
 
 
 def _votes(x: NDArray[np.float64], ref: NDArray[np.float64], b: float, tolerance: float,
-           search: float | None) -> tuple[int, float]:
-    """For slope ``b``: the most pairs ``(x_i, ref_j)`` that one offset ``a`` lays within
-    ``tolerance`` (the densest window of width 2·tolerance among ``ref_j − b·x_i``, within
-    ``search`` of the identity's offset when given), and that offset."""
-    diff = (ref[None, :] - b * x[:, None]).ravel()
+           search: float | None, centre: float) -> tuple[int, float]:
+    """For slope ``b`` and candidate pairs ``(x_i, ref_i)``: the most pairs that one offset
+    ``a`` lays within ``tolerance`` (the densest window of width 2·tolerance among ``ref_i −
+    b·x_i``, within ``search`` of the offset that keeps ``centre`` in place when given), and
+    that offset."""
+    diff = ref - b * x
     if search is not None:
-        diff = diff[np.abs(diff - (1 - b) * np.median(x)) <= search]
+        diff = diff[np.abs(diff - (1 - b) * centre) <= search]
     if not len(diff):
         return 0, 0.0
     diff = np.sort(diff)
@@ -218,8 +219,18 @@ def _hough(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
     # Slope steps that move the far end by half the tolerance.
     step = max(tolerance / (2 * span), 1e-6)
     grid = np.arange(-MAX_SCALE_ERROR, MAX_SCALE_ERROR + step / 2, step)
-    found = [(*_votes(x, ref, sign * (1 + e), tolerance, search), sign * (1 + e))
-             for sign in (1.0, -1.0) for e in grid]
+    centre = float(np.median(x))
+    found = []
+    for sign in (1.0, -1.0):
+        xi, rj = np.broadcast_arrays(x[:, None], ref[None, :])
+        if search is not None:
+            # Only pairs that some slope of the grid can bring within the search.
+            reach = search + tolerance + MAX_SCALE_ERROR * np.abs(x - centre)[:, None]
+            keep = np.abs(ref[None, :] - sign * x[:, None] - (1 - sign) * centre) <= reach
+            xi, rj = xi[keep], rj[keep]
+        xi, rj = xi.ravel(), rj.ravel()
+        found += [(*_votes(xi, rj, sign * (1 + e), tolerance, search, centre), sign * (1 + e))
+                  for e in grid]
     return max(found, key=lambda f: (f[0], -abs(abs(f[2]) - 1)))
 
 
