@@ -1,4 +1,4 @@
-"""Evidence fused across passes: the local calibration, Fisher's combination, the shifted null,
+"""Evidence fused across passes: the local calibration, Stouffer's combination, the shifted null,
 and maps of synthetic score profiles (weak repeating defects, a loud stretch, pure noise)."""
 
 from __future__ import annotations
@@ -60,13 +60,13 @@ def test_calibration_keeps_the_top_for_what_stands_out_of_the_whole_pass() -> No
     assert np.mean(p <= 0.01) == pytest.approx(0.01, abs=0.003)
 
 
-def test_combine_is_fishers_method() -> None:
+def test_combine_is_stouffers_method() -> None:
     p = np.array([[0.01, 0.5, np.nan], [0.2, 0.5, 0.03], [0.05, np.nan, np.nan]])
     evidence, k = fusion.combine(-np.log(p))
     assert k.tolist() == [3, 2, 1]
     for j in range(3):
         q = p[:, j][np.isfinite(p[:, j])]
-        expected = stats.combine_pvalues(q, method="fisher").pvalue
+        expected = stats.combine_pvalues(q, method="stouffer").pvalue
         assert 10 ** -evidence[j] == pytest.approx(expected, rel=1e-9)
 
 

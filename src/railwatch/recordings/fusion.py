@@ -20,9 +20,14 @@ throws that away; summing each pass's evidence keeps it. Per pass and place:
    value the best ``p`` there is, about five places per km per pass; passes shifted at random
    then lined such places up often, and a defect needed four passes of five at the top to pass
    (docs/track-map.md).
-3. **Combination** (Fisher's method): ``S = Σ −ln p`` over the passes that covered the place,
-   whose tail under independent nulls is that of a Gamma(k, 1); the evidence is
-   ``−log10`` of that tail.
+3. **Combination** (Stouffer's method): each pass's ``p`` as a normal score ``z = Φ⁻¹(1 −
+   p)``, ``S = Σ z / √k`` over the ``k`` passes that covered the place, standard normal under
+   independent nulls; the evidence is ``−log10`` of its tail. A defect raises its score a
+   little on most passes rather than a lot on a few (docs/track-map.md: most of the defects the
+   map missed were in the top 2–10 % of every pass, never at the top), which is what
+   Stouffer's sum weighs most; Fisher's ``Σ −ln p`` (the first rule) weighs the few passes at
+   the top, and found 60–75 % where Stouffer's finds 70–85 % of a stage-8-like development
+   track's defects from 5 passes.
 4. **What is significant** is measured, not assumed (the grid values are not independent): the
    same sum with each pass's calibrated profile shifted by a random offset along its own
    stretch of track (a real defect then lines up with nothing) gives the peaks that passes
@@ -37,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d, median_filter, percentile_filter
-from scipy.special import gammaincc
+from scipy.special import log_ndtr, ndtri
 
 #: Grid step of the map (m): finer than a sample at 100 Hz and 25 m/s.
 STEP_M = 0.25
@@ -149,14 +154,14 @@ def calibrate(profile: NDArray[np.float64], half: int,
 
 
 def combine(calibrated: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """Fisher's combination of the passes' −ln p (P, G): −log10 of the Gamma(k, 1) tail of
-    their sum over the k passes that covered each point; and k."""
+    """Stouffer's combination of the passes' −ln p (P, G): −log10 of the standard normal tail
+    of ``Σ Φ⁻¹(1 − p) / √k`` over the k passes that covered each point (0 where none did);
+    and k."""
     ok = np.isfinite(calibrated)
     k = ok.sum(axis=0)
-    total = np.where(ok, calibrated, 0.0).sum(axis=0)
-    with np.errstate(divide="ignore"):
-        tail = np.where(k > 0, gammaincc(np.maximum(k, 1), total), 1.0)
-        evidence = -np.log10(np.maximum(tail, 1e-300))
+    z = np.where(ok, -ndtri(np.exp(-np.where(ok, calibrated, 0.0))), 0.0)
+    total = z.sum(axis=0) / np.sqrt(np.maximum(k, 1))
+    evidence = np.where(k > 0, -log_ndtr(-total) / np.log(10.0), 0.0)
     return evidence, k
 
 
