@@ -175,22 +175,19 @@ def runs_above(evidence: NDArray[np.float64], level: float, gap: int) -> list[ND
 
 
 def peak_position(fused: Fused, xs: list[NDArray[np.float64]],
-                  scores: list[NDArray[np.float64]], run: NDArray[np.int64],
-                  seen: float = SEEN) -> float:
-    """Where a stretch of high evidence peaks: the median, over the passes whose own evidence
-    there reaches ``seen`` (−ln p; all covering passes if none does), of the position of each
-    pass's highest raw score on the stretch (the calibrated profiles are flat-topped: a max
-    filter and a saturating rank)."""
+                  scores: list[NDArray[np.float64]], run: NDArray[np.int64]) -> float:
+    """Where a stretch of high evidence peaks: the median, over the passes that covered it, of
+    the position of each pass's highest raw score on the stretch (the calibrated profiles are
+    flat-topped: a max filter). All covering passes, not only those at the top of their pass:
+    a place that Stouffer's sum finds on a consistent rise may have one pass at the top or
+    none, and one pass's highest score may be noise a few metres off (on the development
+    tracks, places reported 2–4 m beside a defect: 0.09 → 0.07 false per km)."""
     lo, hi = fused.grid[run[0]] - SLACK_M, fused.grid[run[-1]] + SLACK_M
-    strength = np.nanmax(fused.calibrated[:, run], axis=1, initial=-np.inf)
-    chosen = np.flatnonzero(strength >= seen)
-    if not len(chosen):
-        chosen = np.flatnonzero(np.isfinite(strength))
     at = []
-    for i in chosen:
-        m = (xs[i] >= lo) & (xs[i] <= hi) & np.isfinite(scores[i])
+    for x, s in zip(xs, scores, strict=True):
+        m = (x >= lo) & (x <= hi) & np.isfinite(s)
         if m.any():
-            at.append(float(xs[i][m][np.argmax(scores[i][m])]))
+            at.append(float(x[m][np.argmax(s[m])]))
     return float(np.median(at)) if at else float(fused.grid[run[np.argmax(fused.evidence[run])]])
 
 
