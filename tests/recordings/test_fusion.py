@@ -188,3 +188,17 @@ def test_a_scan_without_profiles_or_with_a_damaged_one(tmp_path: Path) -> None:
     (tmp_path / "pass01.profile.npz").write_bytes(b"not an npz")
     with pytest.raises(RailwatchError, match="pass01.profile.npz is damaged"):
         tm.read_scan(tmp_path)
+
+
+def test_one_pass_confirms_nothing() -> None:
+    """Where one pass alone covered the track (near its ends), even that pass's strongest
+    score is no evidence."""
+    xs, scores = profiles(3, np.array([300.0, 2500.0]), bump=8.0, seed=3)
+    for i in (1, 2):  # passes 1 and 2 start at 1 km
+        keep = xs[i] >= 1000.0
+        xs[i], scores[i] = xs[i][keep], scores[i][keep]
+    fused = fusion.fuse(xs, scores, rounds=5)
+    alone = (fused.grid > 50) & (fused.grid < 950)
+    assert (fused.covered[alone] == 1).all() and (fused.evidence[alone] == 0).all()
+    near = np.abs(fused.grid - 2500.0) <= 1.0
+    assert fused.evidence[near].max() > fused.level(0.1)

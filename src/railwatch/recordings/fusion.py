@@ -61,6 +61,10 @@ MIN_SHIFT_M = 100.0
 #: A pass "sees" a place when its own value there is in the top 1 % of the pass (−ln p of the
 #: calibration).
 SEEN = -float(np.log(0.01))
+#: A place needs this many passes over it to have evidence at all: one pass confirms nothing
+#: (a pass's own top is as high as Stouffer's sum gets from one pass, and near the ends of a
+#: track, which most passes do not reach, one pass's noise was reported as a place).
+MIN_PASSES = 2
 
 
 @dataclass
@@ -68,7 +72,8 @@ class Fused:
     """The fused evidence along the map's grid."""
 
     grid: NDArray[np.float64]  # (G,) map positions, m
-    evidence: NDArray[np.float64]  # (G,) −log10 of the combined tail, 0 where nothing covered
+    evidence: NDArray[np.float64]  # (G,) −log10 of the combined tail, 0 where fewer than
+    # MIN_PASSES passes covered
     covered: NDArray[np.int64]  # (G,) passes that covered each grid point
     by_kind: NDArray[np.float64]  # (K, G) the evidence of each kind (sensor group) alone
     calibrated: NDArray[np.float64]  # (P, G) each pass's −ln p, its strongest kind (NaN where
@@ -230,7 +235,9 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
 
     def by_kind(cal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         both = [combine(c) for c in cal]
-        return np.array([e for e, _ in both]), both[0][1]
+        k = both[0][1]
+        # One pass confirms nothing: no evidence where fewer than MIN_PASSES covered.
+        return np.array([np.where(k >= MIN_PASSES, e, 0.0) for e, _ in both]), k
 
     kind_evidence, covered = by_kind(calibrated)
     # The null: each pass shifted along its own covered stretch (circularly), every round.
