@@ -202,3 +202,21 @@ def test_one_pass_confirms_nothing() -> None:
     assert (fused.covered[alone] == 1).all() and (fused.evidence[alone] == 0).all()
     near = np.abs(fused.grid - 2500.0) <= 1.0
     assert fused.evidence[near].max() > fused.level(0.1)
+
+
+def test_profile_shifts_lay_the_passes_on_each_other() -> None:
+    """Passes recorded up to 3 m apart (too little for their events to move them) are laid on
+    each other by their score profiles, two rounds as the track map does, to within 1 m."""
+    defects = np.sort(np.random.default_rng(4).uniform(100, LENGTH - 100, 25))
+    xs, scores = profiles(5, defects, bump=3.0, seed=4)
+    offsets = [0.0, 3.0, -2.5, 2.0, -1.5]
+    moves = [(0.0, 1.0)] * len(xs)
+    for _ in range(2):
+        now = [a + b * (x + off) for x, off, (a, b) in zip(xs, offsets, moves, strict=True)]
+        shifts = fusion.profile_shifts(now, scores, max_scale_error=0.005)
+        moves = [(a + c0 + c1 * a, b * (1 + c1))
+                 for (a, b), (c0, c1) in zip(moves, shifts, strict=True)]
+    # Where each pass now puts the track's start and far end, relative to the first pass.
+    ends = np.array([[a + b * off, a + b * (LENGTH + off) - LENGTH]
+                     for off, (a, b) in zip(offsets, moves, strict=True)])
+    assert np.abs(ends - ends[0]).max() < 1.0, ends

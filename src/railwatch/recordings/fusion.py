@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d, median_filter, percentile_filter
 from scipy.special import log_ndtr, ndtri
+from scipy.stats import theilslopes
 
 #: Grid step of the map (m): finer than a sample at 100 Hz and 25 m/s.
 STEP_M = 0.25
@@ -97,6 +98,11 @@ class Fused:
         ok = np.flatnonzero(self.null_counts <= false_per_km * self.null_km)
         return float(self.null_levels[ok[0]]) if len(ok) else float(self.null_levels[-1])
 
+
+#: The refinement of the alignment by the score profiles (:func:`profile_shifts`): segment
+#: length and largest shift (m).
+SEGMENT_M = 1000.0
+MAX_SHIFT_M = 4.0
 
 #: Evidence levels (−log10 p) at which the null's stretches are counted.
 NULL_LEVELS = np.round(np.arange(2.0, 40.0001, 0.05), 2)
@@ -264,3 +270,52 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
     return Fused(grid=grid, evidence=kind_evidence.max(axis=0), covered=covered,
                  by_kind=kind_evidence, calibrated=strongest,
                  null_levels=NULL_LEVELS, null_counts=counts, null_km=km)
+
+
+def profile_shifts(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
+                   max_scale_error: float, segment_m: float = SEGMENT_M,
+                   max_shift_m: float = MAX_SHIFT_M) -> list[tuple[float, float]]:
+    """Per pass, the correction ``x ↦ x + c0 + c1·x`` that lays its calibrated profile best on
+    the other passes' (their sum), within ``max_shift_m``: the alignment by events uses only
+    the few events per km above a threshold; a pass's profile carries every defect that raises
+    its scores, events or not. Per ``segment_m`` of the pass's stretch, the shift of highest
+    correlation between the pass's normal scores (``Φ⁻¹(1 − p)``, the positive part) and the
+    others' sum (to a fraction of a grid step by a parabola through the peak); a robust line
+    through the segments' shifts (Theil–Sen, its slope within ``max_scale_error``). ``(0, 0)``
+    for a pass with fewer than three segments whose peak lies inside the search."""
+    fused = fuse(xs, scores, rounds=0)
+    cal = fused.calibrated
+    ok = np.isfinite(cal)
+    z = np.where(ok, np.maximum(-ndtri(np.exp(-np.where(ok, cal, 0.0))), 0.0), 0.0)
+    total = z.sum(axis=0)
+    reach, seg = int(round(max_shift_m / STEP_M)), int(round(segment_m / STEP_M))
+    out = []
+    for i in range(len(xs)):
+        others = total - z[i]
+        idx = np.flatnonzero(ok[i])
+        centres, shifts = [], []
+        if len(idx):
+            for s0 in range(idx[0] + reach, idx[-1] - reach - seg // 2, seg):
+                s1 = min(s0 + seg, idx[-1] - reach)
+                c = np.array([np.dot(z[i, s0:s1], others[s0 + k:s1 + k])
+                              for k in range(-reach, reach + 1)])
+                k = int(np.argmax(c))
+                if c[k] <= 0 or k in (0, 2 * reach):  # nothing in common, or at the edge
+                    continue
+                curve = c[k - 1] - 2 * c[k] + c[k + 1]
+                frac = 0.5 * (c[k - 1] - c[k + 1]) / curve if curve < 0 else 0.0
+                centres.append(float(fused.grid[(s0 + s1) // 2]))
+                shifts.append((k - reach + frac) * STEP_M)
+        if len(shifts) < 3:
+            out.append((0.0, 0.0))
+            continue
+        slope = float(np.clip(theilslopes(shifts, centres)[0], -max_scale_error,
+                              max_scale_error))
+        c0 = float(np.median(np.asarray(shifts) - slope * np.asarray(centres)))
+        out.append((c0, slope))
+        # The next passes are laid on this one where it now lies (Gauss–Seidel: moving every
+        # pass at once towards the others as they were overshoots and oscillates).
+        moved = np.interp(fused.grid - (c0 + slope * fused.grid), fused.grid, z[i])
+        total += moved - z[i]
+        z[i] = moved
+    return out
