@@ -69,6 +69,16 @@ def test_alignment_recovers_a_known_offset_and_direction() -> None:
         assert abs(got_b - b) < 2e-4 and np.abs(got_a + got_b * x - truth).max() < 1.0
 
 
+def test_a_bounded_offset_never_turns_a_pass_round() -> None:
+    """With an offset bound the positions are the track's: turning a pass round would move its
+    ends by the track's length, whatever it matches (here every event, turned round about its
+    median); without a bound it is found."""
+    truth = np.sort(np.random.default_rng(5).uniform(100, 9900, 30))
+    x = 2 * np.median(truth) - truth  # the pass counted the other way
+    assert tm.fit_transform(x, truth, tolerance=2.0, search=50.0)[1] > 0
+    assert tm.fit_transform(x, truth, tolerance=2.0, search=None)[1] < 0
+
+
 def test_nothing_moves_without_evidence() -> None:
     ref = np.array([100.0, 500.0, 900.0])
     assert tm.fit_transform(np.array([300.0, 711.0]), ref, 2.0, 50.0) == (0.0, 1.0)

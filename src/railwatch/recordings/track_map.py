@@ -8,10 +8,11 @@ noise levels); a false event does not. The map turns the events of many recordin
 (``railwatch scan``) into locations:
 
 1. **Alignment.** Each pass's recorded positions carry their own odometry error (an offset, a
-   scale error, a slow walk), and may count along the track either way (an odometer counting
-   from the pass's own start). Each pass in turn gets the linear map ``x ↦ a + b·x`` that lays
-   its events on those of all the other passes (:func:`fit_transform`: a Hough search over the
-   slope and offset, then least squares); a real defect is in most passes, so it votes many
+   scale error, a slow walk), and, when they are counted from the pass's own start (no bound
+   on the offset), may run along the track either way. Each pass in turn gets the linear map
+   ``x ↦ a + b·x`` that lays its events on those of all the other passes
+   (:func:`fit_transform`: a Hough search over the slope and offset, then least squares); a
+   real defect is in most passes, so it votes many
    times where a false event votes once. A pass is moved only when the move gains more
    matching events than moves gain by chance. Where every pass records track positions (all
    ``b`` > 0), the map's frame is the median of the passes' odometry.
@@ -212,16 +213,19 @@ def _pairs(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float) -
 
 def _hough(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: float,
            search: float | None) -> tuple[int, float, float]:
-    """The slope ``b`` (within :data:`MAX_SCALE_ERROR` of +1, or of −1 for positions counted
-    the other way along the track) and offset ``a`` that lay the most pairs ``(a + b·x_i,
-    ref_j)`` within ``tolerance`` (:func:`_votes`); ``(pairs, a, b)``."""
+    """The slope ``b`` (within :data:`MAX_SCALE_ERROR` of +1, or, with no bound on the offset
+    (``search`` None: positions counted from each pass's start), of −1 for a pass counted the
+    other way) and offset ``a`` that lay the most pairs ``(a + b·x_i, ref_j)`` within
+    ``tolerance`` (:func:`_votes`); ``(pairs, a, b)``. With a bound, the positions are the
+    track's, give or take ``search``: a pass turned round would move its ends by the length
+    of the track (with 1–2 events per km, chance once turned one round)."""
     span = max(float(np.ptp(x)), 1.0)
     # Slope steps that move the far end by half the tolerance.
     step = max(tolerance / (2 * span), 1e-6)
     grid = np.arange(-MAX_SCALE_ERROR, MAX_SCALE_ERROR + step / 2, step)
     centre = float(np.median(x))
     found = []
-    for sign in (1.0, -1.0):
+    for sign in (1.0,) if search is not None else (1.0, -1.0):
         xi, rj = np.broadcast_arrays(x[:, None], ref[None, :])
         if search is not None:
             # Only pairs that some slope of the grid can bring within the search.
