@@ -9,7 +9,8 @@ crossing of a defect by a pass:
    residual near the crossing over the true noise std;
 2. **What each detector keeps**: whether the detector's per-sample score (the scan's profile) at
    the crossing is in the top 1 % of the same pass and channel's scores within ±100 m outside
-   ±10 m (the fused map's calibration, on the raw samples);
+   ±10 m (the fused map's first calibration, on the raw samples: a yardstick of the
+   detector, kept as it was);
 3. **What the map makes of it**: recall and false places per km of the fused map from 5 and 10
    passes with positions as recorded by odometry alone (the default) and by a GNSS-aided
    odometry, and at their true positions (an odometry without errors), each aligned by

@@ -12,10 +12,10 @@ noise levels); a false event does not. The map turns the events of many recordin
    on the offset), may run along the track either way. Each pass in turn gets the linear map
    ``x ↦ a + b·x`` that lays its events on those of all the other passes
    (:func:`fit_transform`: a Hough search over the slope and offset, then least squares); a
-   real defect is in most passes, so it votes many
-   times where a false event votes once. A pass is moved only when the move gains more
-   matching events than moves gain by chance. Where every pass records track positions (all
-   ``b`` > 0), the map's frame is the median of the passes' odometry.
+   real defect is in most passes, so it votes many times where a false event votes once. A
+   pass is moved only when the move gains more matching events than moves gain by chance.
+   Where every pass records track positions (all ``b`` > 0), the map's frame is the median of
+   the passes' odometry.
 2. **Clustering.** Aligned events closer than ``tolerance_m`` are one location (single linkage:
    the connected groups of the "closer than" graph).
 3. **Per location:** position (median), extent, passes seen, passes that covered it (their
