@@ -122,8 +122,9 @@ from the events' duration), first_seen, last_seen (recording names).
 @click.option("--tolerance-m", type=click.FloatRange(min=0, min_open=True), default=2.0,
               show_default=True, help="Events of different passes closer than this are one place.")
 @click.option("--max-offset-m", type=click.FloatRange(min=0), default=50.0, show_default=True,
-              help="Largest offset between two passes' positions; 0: any (positions counted "
-                   "from each pass's start).")
+              help="Largest offset between two passes' positions (track positions: no pass "
+                   "is turned round); 0: any (positions counted from each pass's start, "
+                   "either way along the track).")
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
               help="votes: report a place seen on at least this share of the passes that "
                    "covered it, and on 2 passes at least (one pass confirms nothing).")
@@ -137,11 +138,12 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     """Turn repeated passes over one line into ranked places on the track.
 
     \b
-    Passes are aligned (each pass's odometry offset and drift, from the events that repeat);
-    each pass's scores are calibrated against its own neighbourhood and summed over the passes
-    at every place: a defect raises the score on most passes, even below the event threshold;
-    a false event or a loud stretch of one pass does not repeat. What counts as evident is
-    measured by shifting the passes against each other at random.
+    Passes are aligned (each pass's odometry offset and drift, from the events that repeat,
+    refined by the score profiles); each pass's scores are scaled by its own neighbourhood,
+    ranked within the pass and summed over the passes at every place: a defect raises the
+    score on most passes, even below the event threshold; a false event or a loud stretch of
+    one pass does not repeat. What counts as evident is measured by shifting the passes
+    against each other at random.
     Example:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
     """
