@@ -58,12 +58,13 @@ def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # typ
             assert f["channel_score"].shape == (len(f["position_m"]), 6)
             assert list(f["groups"]) == ["axle", "axle", "bogie", "bogie", "body", "body"]
             assert np.isfinite(f["position_m"]).all()
-            # An event's peak score is the profile's score (highest channel) at its peak.
+            # An event's peak score is the highest over the windows that cover its peak; the
+            # profile keeps the score of the one window the sample is most central in.
             point, t = f["channel_score"].max(axis=1), f["time_s"]
             for r in rows:
                 if r["recording"] == p.stem:
                     j = int(np.argmin(np.abs(t - float(r["peak_s"]))))
-                    assert point[j] == pytest.approx(float(r["score"]), rel=1e-5, abs=1e-3)
+                    assert point[j] <= float(r["score"]) + 1e-3
     again = scan(folder / "model", paths, out)
     assert (again.scanned, again.reused, again.events) == (0, 4, summary.events)
 

@@ -11,7 +11,12 @@ from railwatch.detectors import create
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, frame, resample
-from railwatch.recordings.stream import EventTracker, StreamingDetector, merge_max
+from railwatch.recordings.stream import (
+    EventTracker,
+    StreamingDetector,
+    assign_centres,
+    merge_max,
+)
 
 
 @given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 2**31))
@@ -25,6 +30,37 @@ def test_merge_max_equals_a_loop(n_windows: int, width: int, seed: int) -> None:
     for s, v in zip(starts, values, strict=True):
         for j in range(width):
             brute[s + j] = np.maximum(brute[s + j], v[j])
+    np.testing.assert_array_equal(acc, brute)
+
+
+def owner_by_loop(n: int, starts: list[int], width: int, hop: int) -> list[int]:
+    """Per sample, the window whose central ``hop`` samples hold it (``frame``'s windows: every
+    ``hop``, and a last one ending at the last sample); the first window also owns the samples
+    before its centre, the last one those after the regular windows' centres."""
+    lo = (width - hop) // 2
+    regular = [s for s in starts if s % hop == 0]
+    owner = []
+    for i in range(n):
+        k = next((w for w, s in enumerate(regular) if s + lo <= i < s + lo + hop), None)
+        if k is None:
+            k = 0 if i < lo else len(starts) - 1
+        owner.append(k)
+    return owner
+
+
+@given(st.integers(4, 30), st.integers(1, 4), st.integers(0, 12), st.integers(0, 2**31))
+def test_assign_centres_equals_a_loop(width: int, hop_part: int, extra: int, seed: int) -> None:
+    """Each sample takes the score of the window it is most central in."""
+    hop = max(1, width * hop_part // 4)
+    n = width + extra
+    starts = list(range(0, n - width + 1, hop))
+    if starts[-1] + width < n:
+        starts.append(n - width)
+    values = np.random.default_rng(seed).normal(size=(len(starts), width, 2))
+    acc = np.full((n, 2), -np.inf)
+    assert assign_centres(acc, values, np.asarray(starts), 0, 0, hop, last_to=n) == n
+    owner = owner_by_loop(n, starts, width, hop)
+    brute = np.array([values[owner[i], i - starts[owner[i]]] for i in range(n)])
     np.testing.assert_array_equal(acc, brute)
 
 
@@ -88,8 +124,10 @@ def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: i
     layout = Layout(fs=fs, channels=layout.channels, groups=layout.groups)
     rng = np.random.default_rng(3)
     traces: list[np.ndarray] = []
+    centres: list[np.ndarray] = []
     stream = StreamingDetector(det, layout, prep, threshold=float(det.threshold_) * 0.5,
-                               on_samples=lambda t, p, c, pos: traces.append(np.c_[t, p]))
+                               on_samples=lambda t, p, c, pos: traces.append(np.c_[t, p]),
+                               on_centres=lambda t, c, pos: centres.append(c))
     events, i = [], 0
     while i < len(raw):
         n = int(rng.integers(1, 300))
@@ -109,6 +147,11 @@ def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: i
             brute[s + j] = max(brute[s + j], p[j])
     np.testing.assert_allclose(got[:, 0], np.arange(len(signal)) / 100.0)
     np.testing.assert_allclose(got[:, 1], brute, rtol=1e-5, atol=1e-5)
+    # The central profile: each sample's channel scores from the window it is most central in.
+    channel = det.score(windows).channel  # type: ignore[attr-defined]
+    owner = owner_by_loop(len(signal), starts.tolist(), 50, 20)
+    central = np.array([channel[owner[i], i - starts[owner[i]]] for i in range(len(signal))])
+    np.testing.assert_allclose(np.concatenate(centres), central, rtol=1e-5, atol=1e-5)
 
     again = StreamingDetector(det, layout, prep, threshold=float(det.threshold_) * 0.5)
     assert [e.peak_s for e in again.push(raw) + again.close()] == [e.peak_s for e in events]

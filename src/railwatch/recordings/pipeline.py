@@ -188,16 +188,16 @@ class Trace:
 
 class Profile:
     """Every per-sample score of a recording at the model's rate: time, the score of each
-    channel and the track position (NaN without position or speed). What ``railwatch scan``
-    keeps for the track map's fusion of passes (a 10-minute recording of six channels at
+    channel (from the window the sample is most central in: ``StreamingDetector``'s
+    ``on_centres``) and the track position (NaN without position or speed). What ``railwatch
+    scan`` keeps for the track map's fusion of passes (a 10-minute recording of six channels at
     100 Hz: 60,000 samples, under 3 MB)."""
 
     def __init__(self) -> None:
         self._aux: list[NDArray[Any]] = []
         self._channel: list[NDArray[Any]] = []
 
-    def add(self, time: NDArray[Any], point: NDArray[Any], channel: NDArray[Any],
-            position: NDArray[Any]) -> None:
+    def add(self, time: NDArray[Any], channel: NDArray[Any], position: NDArray[Any]) -> None:
         self._aux.append(np.stack([time, position], axis=1))
         self._channel.append(np.asarray(channel, dtype=np.float32))
 
@@ -222,16 +222,13 @@ def detect(model: Detector, recording: Recording, prep: Preparation,
            progress: Callable[[int], None] | None = None,
            profile: Profile | None = None) -> Detection:
     """Stream ``recording`` through ``model`` block by block; events and a score trace (and,
-    when given, every per-sample score into ``profile``)."""
+    when given, every sample's per-channel score from its most central window into
+    ``profile``)."""
     trace = Trace()
 
-    def on_samples(*args: NDArray[Any]) -> None:
-        trace.add(*args)
-        if profile is not None:
-            profile.add(*args)
-
     stream = StreamingDetector(model, recording.layout, prep, threshold, merge_gap_s,
-                               on_samples=on_samples)
+                               on_samples=trace.add,
+                               on_centres=None if profile is None else profile.add)
     events: list[Event] = []
     for chunk in recording.chunks(chunk_rows):
         events += stream.push(chunk)

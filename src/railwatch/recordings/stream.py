@@ -65,6 +65,33 @@ def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], off
     np.maximum.at(acc, idx, values.reshape(len(idx), *values.shape[2:]))
 
 
+def assign_centres(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int,
+                   owned: int, hop: int, last_to: int | None = None) -> int:
+    """In place: each sample from ``owned`` on takes the per-step score of the window it is
+    most central in. Window ``w`` (start ``s``, in order) scores the samples from where the
+    previous one stopped to ``s + (T + hop) // 2`` (the last window, when ``last_to`` is given,
+    to ``last_to``): with windows every ``hop`` samples that is its central ``hop`` samples,
+    and the first window also scores the recording's first samples. ``acc`` holds per-sample
+    scores (n, ...) from sample ``offset``; ``values`` (K, T, ...) the windows' per-step
+    scores. Returns the sample up to which scores are assigned.
+
+    >>> acc = np.full(8, -np.inf)
+    >>> assign_centres(acc, np.array([[1.0, 1, 1, 1], [2.0, 2, 2, 2]]), np.array([0, 2]), 0,
+    ...                0, 2, last_to=6)
+    6
+    >>> acc.tolist()
+    [1.0, 1.0, 1.0, 2.0, 2.0, 2.0, -inf, -inf]
+    """
+    n_steps = values.shape[1]
+    reach = (n_steps + hop) // 2
+    for w, start in enumerate(np.asarray(starts).tolist()):
+        to = last_to if last_to is not None and w == len(starts) - 1 else start + reach
+        if to > owned:
+            acc[owned - offset:to - offset] = values[w, owned - start:to - start]
+            owned = to
+    return owned
+
+
 class EventTracker:
     """Runs of final per-sample scores above the threshold -> events (runs closer than
     ``merge_gap`` samples are one event)."""
@@ -117,11 +144,19 @@ class StreamingDetector:
 
     ``on_samples(time, point, channel, position)``, if given, receives every finalised stretch
     of per-sample scores (for a score trace or a plot; position is NaN when unknown).
+    ``on_centres(time, channel, position)``, if given, receives the same stretches with each
+    sample's per-channel score taken from the one window it is most central in
+    (:func:`assign_centres`) instead of the maximum over the windows that cover it: the score
+    profile that ``railwatch scan`` keeps for the track map. A window whose last samples enter
+    a louder stretch of track judges them by the quieter rest of the window, and the maximum
+    keeps that; the window in which they are central does not.
     """
 
     def __init__(self, detector: Detector, layout: Layout, preparation: Preparation,
                  threshold: float | None = None, merge_gap_s: float = 0.5,
                  on_samples: Callable[[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]],
+                                      None] | None = None,
+                 on_centres: Callable[[NDArray[Any], NDArray[Any], NDArray[Any]],
                                       None] | None = None) -> None:
         n_channels = len(layout.channels)
         if n_channels != detector.n_channels_:
@@ -143,7 +178,7 @@ class StreamingDetector:
         self.threshold = float(detector.threshold_ if threshold is None else threshold)
         self.tracker = EventTracker(self.threshold, max(1, round(merge_gap_s * self.fs)),
                                     layout.channels, layout.groups)
-        self.on_samples = on_samples
+        self.on_samples, self.on_centres = on_samples, on_centres
         self.resampler = Resampler(self.up, self.down, n_channels)
         self.n_in = 0  # raw samples received
         self.distance = 0.0  # integrated speed (m) up to raw sample n_in
@@ -154,8 +189,10 @@ class StreamingDetector:
         self.buf_start = 0  # output index of samples[0]
         self.next_window = 0  # output index of the next window's start
         self.final = 0  # outputs before this index are final
+        self.owned = 0  # outputs before this index have their central score (assign_centres)
         self.point = np.zeros(0)  # merged scores of outputs final .. buf end
         self.channel = np.zeros((0, n_channels))
+        self.centre = np.zeros((0, n_channels))  # central per-channel scores, final .. buf end
         self.closed = False
 
     # -- public ------------------------------------------------------------------------------
@@ -217,6 +254,8 @@ class StreamingDetector:
             self.point = np.concatenate([self.point, np.full(len(out), -np.inf)])
             self.channel = np.concatenate([self.channel,
                                            np.full((len(out), self.channel.shape[1]), -np.inf)])
+            self.centre = np.concatenate([self.centre,
+                                          np.full((len(out), self.centre.shape[1]), -np.inf)])
         n_out = self.buf_start + len(self.samples)
         starts = list(range(self.next_window, n_out - self.window + 1, self.hop))
         if end:  # as frame(cover_end=True): a last window ending at the last sample
@@ -224,7 +263,9 @@ class StreamingDetector:
                 raise RailwatchError(f"the recording is shorter than one window "
                                      f"({n_out} < {self.window} samples at {self.fs:g} Hz)")
             last_regular = starts[-1] if starts else self.next_window - self.hop
-            if last_regular + self.window < n_out:
+            if not starts or last_regular + self.window < n_out:
+                # The last window scores the central profile up to the last sample (scored
+                # again if it was the previous block's last: then it did not know it was).
                 starts.append(n_out - self.window)
         if starts:
             windows = gather_windows(self.samples, np.asarray(starts) - self.buf_start,
@@ -232,6 +273,9 @@ class StreamingDetector:
             scores = self.detector.score(windows)
             merge_max(self.point, scores.point, np.asarray(starts), self.final)
             merge_max(self.channel, scores.channel, np.asarray(starts), self.final)
+            self.owned = assign_centres(self.centre, scores.channel, np.asarray(starts),
+                                        self.final, self.owned, self.hop,
+                                        n_out if end else None)
             self.next_window = starts[-1] + self.hop
         # Final: no later window covers it. Regular windows start at next_window or later; the
         # tail window (added at the end) starts at n_total − window ≥ n_out − window.
@@ -247,10 +291,13 @@ class StreamingDetector:
         position = None if np.isnan(aux[:, 1]).all() else aux[:, 1]
         if self.on_samples is not None:
             self.on_samples(aux[:, 0], point, channel, aux[:, 1])
+        if self.on_centres is not None:
+            self.on_centres(aux[:, 0], self.centre[:k], aux[:, 1])
         events = self.tracker.feed(point, channel, aux[:, 0], position, 1.0 / self.fs)
-        self.point, self.channel = self.point[k:], self.channel[k:]
+        self.point, self.channel, self.centre = self.point[k:], self.channel[k:], self.centre[k:]
         self.final = upto
-        keep = min(self.final, self.next_window) - self.buf_start  # needed by later windows
+        # Needed by later windows, and by the last window again if the recording ends there.
+        keep = max(0, min(self.final, self.next_window - self.hop) - self.buf_start)
         self.samples, self.aux = self.samples[keep:], self.aux[keep:]
         self.buf_start += keep
         return events
