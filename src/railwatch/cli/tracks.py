@@ -37,10 +37,11 @@ def expand_recordings(items: tuple[str, ...]) -> list[Path]:
 
 @click.command(epilog="""\b
 OUT gets, per recording NAME: NAME.events.csv, NAME.profile.npz (every sample's score per
-channel and its position: what track-map fuses across passes) and NAME.scan.json (what was
-scanned, the stretch of track covered); and events.csv, every event with its recording. A
-recording scanned before by the same model (same file, same threshold) is not scanned again:
-kill a scan and start it again, and it goes on where it stopped.""")
+channel from the window it is most central in, and its position: what track-map fuses across
+passes) and NAME.scan.json (what was scanned, the stretch of track covered); and events.csv,
+every event with its recording. A recording scanned before by the same model (same file, same
+threshold) is not scanned again: kill a scan and start it again, and it goes on where it
+stopped.""")
 @click.option("--model", type=click.Path(path_type=Path), required=True,
               help="Model folder written by 'railwatch train --recordings' (or its .onnx).")
 @click.option("--recordings", "recordings", multiple=True, required=True, metavar="PATH...",
