@@ -67,6 +67,13 @@ def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # typ
                     assert point[j] <= float(r["score"]) + 1e-3
     again = scan(folder / "model", paths, out)
     assert (again.scanned, again.reused, again.events) == (0, 4, summary.events)
+    # A scan whose profile holds the maximum over windows (before central profiles) is redone.
+    info_path = out / f"{paths[0].stem}.scan.json"
+    info = json.loads(info_path.read_text())
+    del info["profile"]
+    info_path.write_text(json.dumps(info))
+    redo = scan(folder / "model", paths, out)
+    assert (redo.scanned, redo.reused) == (1, 3)
 
 
 @pytest.mark.slow

@@ -119,6 +119,11 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
                        recording_s=seconds, wall_s=time.perf_counter() - started)
 
 
+#: What the score profile holds: each sample's score from the window it is most central in
+#: (a scan before this, which kept the maximum over the covering windows, is scanned again).
+PROFILE_KIND = "central-window"
+
+
 def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
     """Scanned before by this model, with this threshold, from this very file."""
     info_path = out / f"{path.stem}{SCAN_SUFFIX}"
@@ -128,7 +133,8 @@ def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
     try:
         info = json.loads(info_path.read_text())
         return bool(info.get("model") == ident and info.get("threshold_given") == threshold
-                    and info.get("signature") == _signature(path))
+                    and info.get("signature") == _signature(path)
+                    and info.get("profile") == PROFILE_KIND)
     except (OSError, ValueError):
         return False
 
@@ -152,6 +158,7 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         "threshold": result.threshold, "detect_s": time.perf_counter() - started,
         "position_first_m": float(finite[0]) if len(finite) else None,
         "position_last_m": float(finite[-1]) if len(finite) else None,
+        "profile": PROFILE_KIND,
     }
     arrays = {**profile.arrays(), "channels": np.array(lay.channels),
               "groups": np.array(lay.groups)}
