@@ -3,6 +3,7 @@ and maps of synthetic score profiles (weak repeating defects, a loud stretch, pu
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -147,7 +148,8 @@ def scan_folder(folder: Path, xs: list[np.ndarray], scores: list[np.ndarray],
     for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
         name = f"pass{i:02d}"
         (folder / f"{name}.scan.json").write_text(json.dumps(
-            {"position_first_m": float(x[0]), "position_last_m": float(x[-1])}))
+            {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
+             "profile": tm.PROFILE_KIND}))
         rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
         for d in defects:
             j = int(np.argmin(np.abs(x - d)))
@@ -181,8 +183,15 @@ def test_a_scan_without_profiles_or_with_a_damaged_one(tmp_path: Path) -> None:
     defects = np.array([500.0])
     xs, scores = profiles(2, defects, seed=4)
     scan_folder(tmp_path, xs, scores, defects)
+    info = json.loads((tmp_path / "pass00.scan.json").read_text())
+    del info["profile"]  # scanned when profiles kept the maximum over windows
+    (tmp_path / "pass00.scan.json").write_text(json.dumps(info))
+    with pytest.raises(RailwatchError, match="pass00 .*without a current score profile.*votes"):
+        tm.fused_map(tm.read_scan(tmp_path))
+    info["profile"] = tm.PROFILE_KIND
+    (tmp_path / "pass00.scan.json").write_text(json.dumps(info))
     (tmp_path / "pass01.profile.npz").unlink()
-    with pytest.raises(RailwatchError, match="without its score profile.*--method votes"):
+    with pytest.raises(RailwatchError, match="pass01 .*without a current score profile.*votes"):
         tm.fused_map(tm.read_scan(tmp_path))
     assert len(tm.track_map(tm.read_scan(tmp_path))) >= 1  # the votes map needs no profile
     (tmp_path / "pass01.profile.npz").write_bytes(b"not an npz")
@@ -220,3 +229,15 @@ def test_profile_shifts_lay_the_passes_on_each_other() -> None:
     ends = np.array([[a + b * off, a + b * (LENGTH + off) - LENGTH]
                      for off, (a, b) in zip(offsets, moves, strict=True)])
     assert np.abs(ends - ends[0]).max() < 1.0, ends
+
+
+def test_one_pass_confirms_nothing_in_a_group_the_others_lack() -> None:
+    """Each sensor group needs two passes of its own: a group only one recording has gives no
+    evidence, whatever the other groups' coverage."""
+    xs, scores = profiles(2, np.array([2500.0]), bump=0.0, seed=5)
+    two = [np.stack([s, s.copy()], axis=1) for s in scores]
+    two[0][np.abs(xs[0] - 1200.0) <= 0.5, 1] = 50.0  # a lone spike in pass 0's second group
+    two[1][:, 1] = np.nan  # pass 1 has no second group
+    fused = fusion.fuse(xs, two, rounds=5)
+    assert (fused.by_kind[1] == 0).all()
+    assert (fused.covered[(fused.grid > 10) & (fused.grid < LENGTH - 10)] == 2).all()

@@ -133,7 +133,7 @@ def local_scale(profile: NDArray[np.float64], half: int, stride: int = LOCAL_STR
     ``stride`` points."""
     v = np.asarray(profile, dtype=float)
     coarse = v[::stride]
-    size = max(1, (2 * half) // stride + 1)
+    size = 2 * (half // stride) + 1
     level = median_filter(coarse, size=size, mode="mirror")
     top = percentile_filter(coarse, SPREAD_PERCENTILE, size=size, mode="mirror")
     at = np.arange(len(coarse)) * stride
@@ -144,8 +144,9 @@ def calibrate(profile: NDArray[np.float64], half: int,
               stride: int = LOCAL_STRIDE) -> NDArray[np.float64]:
     """Per point, ``p``: the share of the profile's finite values whose local ``z`` (module
     docstring; :func:`local_scale` over ``half`` points on either side) reaches the one here,
-    counting the point itself: (ties and above) / (1 + values). NaN where the profile is NaN;
-    −inf (a grid step no sample reached) counts as the lowest value."""
+    counting the point itself: (ties and above) / (1 + values). NaN where the profile is NaN
+    (and everywhere if it has no finite value); −inf (a grid step no sample reached) takes the
+    pass's lowest finite value before the local scaling."""
     profile = np.asarray(profile, dtype=float)
     ok = ~np.isnan(profile)
     out = np.full(len(profile), np.nan)
@@ -154,7 +155,6 @@ def calibrate(profile: NDArray[np.float64], half: int,
         return out
     finite = np.isfinite(v)
     if not finite.any():
-        out[ok] = 1.0
         return out
     v = np.where(finite, v, v[finite].min())
     level, top = local_scale(v, half, stride)
@@ -241,15 +241,16 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
 
     def by_kind(cal: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         both = [combine(c) for c in cal]
-        k = both[0][1]
-        # One pass confirms nothing: no evidence where fewer than MIN_PASSES covered.
-        return np.array([np.where(k >= MIN_PASSES, e, 0.0) for e, _ in both]), k
+        # One pass confirms nothing: no evidence of a kind where fewer than MIN_PASSES passes
+        # covered it (passes may lack a kind: a recording without that sensor group).
+        evidence = np.array([np.where(k >= MIN_PASSES, e, 0.0) for e, k in both])
+        return evidence, np.isfinite(cal).any(axis=0).sum(axis=0)
 
     kind_evidence, covered = by_kind(calibrated)
     # The null: each pass shifted along its own covered stretch (circularly), every round.
     rng = np.random.default_rng(seed)
     gap = max(1, int(round(tolerance_m / step_m)))
-    spans = [np.flatnonzero(np.isfinite(c)) for c in calibrated[0]]
+    spans = [np.flatnonzero(np.isfinite(c).any(axis=0)) for c in calibrated.transpose(1, 0, 2)]
     min_shift = int(round(MIN_SHIFT_M / step_m))
     counts = np.zeros(len(NULL_LEVELS))
     for _ in range(rounds):
@@ -264,7 +265,7 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
             shifted[:, i, lo_i:hi_i] = np.roll(calibrated[:, i, lo_i:hi_i], shift, axis=-1)
         null, _ = by_kind(shifted)
         counts += count_runs(null.max(axis=0), NULL_LEVELS, gap)
-    km = rounds * float((covered > 0).sum()) * step_m / 1000.0
+    km = rounds * float((covered >= MIN_PASSES).sum()) * step_m / 1000.0
     with np.errstate(invalid="ignore"):
         strongest = np.fmax.reduce(calibrated, axis=0)  # NaN only where no kind covered
     return Fused(grid=grid, evidence=kind_evidence.max(axis=0), covered=covered,

@@ -30,7 +30,12 @@ from railwatch.errors import RailwatchError
 from railwatch.recordings import pipeline
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording
-from railwatch.recordings.track_map import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
+from railwatch.recordings.track_map import (
+    EVENTS_SUFFIX,
+    PROFILE_KIND,
+    PROFILE_SUFFIX,
+    SCAN_SUFFIX,
+)
 
 #: Ray's memory resource asked per recording task: what one streaming scan needs with room.
 TASK_MEMORY = 2 * 1024**3
@@ -117,11 +122,6 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
     n_events, seconds = _combine(out, [p.stem for p in paths])
     return ScanSummary(scanned=len(todo), reused=len(paths) - len(todo), events=n_events,
                        recording_s=seconds, wall_s=time.perf_counter() - started)
-
-
-#: What the score profile holds: each sample's score from the window it is most central in
-#: (a scan before this, which kept the maximum over the covering windows, is scanned again).
-PROFILE_KIND = "central-window"
 
 
 def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:

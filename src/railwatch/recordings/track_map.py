@@ -46,6 +46,10 @@ from railwatch.recordings import fusion
 SCAN_SUFFIX = ".scan.json"
 EVENTS_SUFFIX = ".events.csv"
 PROFILE_SUFFIX = ".profile.npz"
+#: What a scan's score profile holds (``"profile"`` in ``NAME.scan.json``): each sample's score
+#: from the window it is most central in. A scan without it kept the maximum over the windows
+#: that cover each sample: ``scan`` redoes such recordings, the fused map refuses them.
+PROFILE_KIND = "central-window"
 #: Columns of the map (one row per location, most confident first).
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
               "passes_seen", "passes_covered", "share", "confidence", "median_score", "channel",
@@ -158,7 +162,8 @@ def _read_pass(info_path: Path) -> PassEvents:
     return PassEvents(name=name, position=position, score=score, duration_s=duration,
                       channel=[r["channel"] for r in rows], group=[r["group"] for r in rows],
                       covered=(min(lo, hi), max(lo, hi)),
-                      profile=_read_profile(info_path.with_name(name + PROFILE_SUFFIX)))
+                      profile=_read_profile(info_path.with_name(name + PROFILE_SUFFIX))
+                      if info.get("profile") == PROFILE_KIND else None)
 
 
 def _read_profile(path: Path) -> ScoreProfile | None:
@@ -444,9 +449,10 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
         raise RailwatchError(f"--tolerance-m must be positive, got {tolerance_m:g}")
     lacking = [p.name for p in passes if p.profile is None]
     if lacking:
-        raise RailwatchError(f"{lacking[0]} was scanned without its score profile (a scan "
-                             "before railwatch kept them): scan again into a new folder, or "
-                             "map with --method votes")
+        raise RailwatchError(f"{lacking[0]} was scanned without a current score profile (a "
+                             "scan before railwatch kept each sample's score from its central "
+                             "window): scan again into the same folder (only such recordings "
+                             "are redone), or map with --method votes")
     profiles = [p.profile for p in passes if p.profile is not None]
     groups = tuple(dict.fromkeys(g for pr in profiles for g in pr.groups))
     per_group = [pr.by_group(groups) for pr in profiles]
