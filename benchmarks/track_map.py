@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -52,6 +53,21 @@ SHARES = (0.2, 0.3, 0.4, 0.5, 0.6)
 #: sensitive scan, since what does not repeat is dropped.
 FACTORS = (1.0, 0.75, 0.5)
 TARGET_RECALL, TARGET_FALSE = 0.95, 0.1
+
+
+def page_head(script: str, doc: str) -> tuple[str, list[str]]:
+    """How a results page of the track-map benchmarks opens: the command that made it (with
+    this run's arguments), the date, the CPU and the first paragraph of the script's docstring
+    after its title; and the numbered items of the next paragraph, one line each."""
+    from railwatch.machine import cpu_name
+
+    parts = doc.split("\n\n")
+    command = (f"Command: `python benchmarks/{script} {' '.join(sys.argv[1:])}`, "
+               f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
+               + " ".join(parts[1].split()))
+    items = [" ".join(item.split()) for item in re.split(r"\n(?=\d\. )", parts[2])] \
+        if len(parts) > 2 else []
+    return command, items
 
 
 def track(work: Path, kind: str, role: str) -> Path:
@@ -241,7 +257,6 @@ def main() -> None:
     global PASSES, TRAIN
     TRAIN, PASSES = args.train, args.train + 10
     runs = [(kind, det) for kind, det in RUNS if det in args.detectors.split(",")]
-    from railwatch.machine import cpu_name
     from railwatch.report.figures import save_figure
     from railwatch.report.pages import write_markdown
 
@@ -272,9 +287,7 @@ def main() -> None:
     lines = [
         "# The track map against the number of passes",
         "",
-        f"Command: `python benchmarks/track_map.py {' '.join(sys.argv[1:])}`, "
-        f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
-        + " ".join(__doc__.split("\n\n")[1].split())
+        page_head("track_map.py", __doc__)[0]
         + ("" if TRAIN == 2 else f" Here {PASSES} passes, the first {TRAIN} trained on, the "
            "other 10 mapped."),
         "",

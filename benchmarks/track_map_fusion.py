@@ -25,8 +25,6 @@ tracks are made here): `make bench-track-map-fusion`, about 15 minutes on 2 core
 from __future__ import annotations
 
 import argparse
-import datetime
-import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -88,9 +86,9 @@ def rules(step: int) -> Iterator[None]:
     if step < 2:
         fusion.combine = fisher
     if step < 3:
-        tm.refine_by_profiles = lambda passes, transforms, scores, rounds=2: (  # type: ignore[assignment]  # noqa: E501
-            tm._consensus_frame(passes, transforms) if all(b > 0 for _, b in transforms)
-            else transforms)
+        refine = saved[2]  # no rounds of refinement: the events' alignment in its frame
+        tm.refine_by_profiles = (  # type: ignore[assignment]
+            lambda passes, transforms, scores, rounds=2: refine(passes, transforms, scores, 0))
     try:
         yield
     finally:
@@ -102,7 +100,6 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-fusion.md"))
     args = parser.parse_args()
-    from railwatch.machine import cpu_name
     from railwatch.recordings import track_map as tm
     from railwatch.report.pages import write_markdown
 
@@ -146,14 +143,13 @@ def main() -> None:
                 rows.append(f"| {kind} | {placed} | {label} | " + " | ".join(text) + " |")
                 print(rows[-1], flush=True)
     mean = totals / max(count, 1)
+    command, items = bench.page_head("track_map_fusion.py", __doc__)
     lines = [
         "# What each step of the fused track map adds",
         "",
-        f"Command: `python benchmarks/track_map_fusion.py {' '.join(sys.argv[1:])}`, "
-        f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
-        + " ".join(__doc__.split("\n\n")[1].split()),
+        command,
         "",
-        *(" ".join(item.split()) for item in re.split(r"\n(?=\d\. )", __doc__.split("\n\n")[2])),
+        *items,
         "",
         "Each cell: recall / false places per km, the mean of the two development tracks "
         "(seeds 12 and 13).",

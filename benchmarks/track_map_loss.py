@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import datetime
-import re
 import sys
 from pathlib import Path
 
@@ -129,7 +127,6 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-loss.md"))
     args = parser.parse_args()
-    from railwatch.machine import cpu_name
     from railwatch.report.pages import write_markdown
 
     per_pass = ["| nuisance | crossings | oracle SNR ≥ 5 | oracle SNR, median | "
@@ -161,15 +158,13 @@ def main() -> None:
                 maps.append(f"| {kind} | {d} | {k} | " + " | ".join(
                     f"{c['recall']:.0%} / {c['false_per_km']:.1f}" for c in cells) + " |")
                 print(maps[-1], flush=True)
+    command, items = bench.page_head("track_map_loss.py", __doc__)
     lines = [
         "# Where the track map loses defects",
         "",
-        f"Command: `python benchmarks/track_map_loss.py {' '.join(sys.argv[1:])}`, "
-        f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
-        + " ".join(__doc__.split("\n\n")[1].split()),
+        command,
         "",
-        *(" ".join(item.split()) for item in re.split(r"\n(?=\d\. )",
-                                                       __doc__.split("\n\n")[2])),
+        *items,
         "",
         "Per crossing of a defect by a pass (passes 3-12 of the development tracks):",
         "",
