@@ -231,6 +231,19 @@ def test_profile_shifts_lay_the_passes_on_each_other() -> None:
     assert np.abs(ends - ends[0]).max() < 1.0, ends
 
 
+def test_a_move_the_profiles_do_not_confirm_is_undone() -> None:
+    """A pass moved 30 m (chance pairs of events) lies on the others worse than where it was
+    recorded, and goes back; a pass recorded 12 m off and moved onto the others keeps its move
+    (beyond the ±4 m that the segments' shifts reach)."""
+    defects = np.sort(np.random.default_rng(5).uniform(100, LENGTH - 100, 25))
+    xs, scores = profiles(5, defects, bump=3.0, seed=5)
+    recorded = [x.copy() for x in xs]
+    recorded[3] = xs[3] + 12.0  # its odometry 12 m off; the move below puts it right
+    placed = [x.copy() for x in xs]
+    placed[1] = xs[1] + 30.0  # a wrong move
+    assert fusion.keeps_move(placed, scores, recorded) == [True, False, True, True, True]
+
+
 def test_one_pass_confirms_nothing_in_a_group_the_others_lack() -> None:
     """Each sensor group needs two passes of its own: a group only one recording has gives no
     evidence, whatever the other groups' coverage."""

@@ -37,6 +37,7 @@ throws that away; summing each pass's evidence keeps it. Per pass and place:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -273,6 +274,66 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
                  null_levels=NULL_LEVELS, null_counts=counts, null_km=km)
 
 
+def _normal_scores(calibrated: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The positive part of ``Φ⁻¹(1 − p)`` of calibrated profiles (−ln p; 0 where NaN)."""
+    ok = np.isfinite(calibrated)
+    return np.where(ok, np.maximum(-ndtri(np.exp(-np.where(ok, calibrated, 0.0))), 0.0), 0.0)
+
+
+def _segments(z: NDArray[np.float64], others: NDArray[np.float64], covered: NDArray[np.bool_],
+              reach: int, seg: int) -> Iterator[tuple[int, int, NDArray[np.float64]]]:
+    """Per ``seg`` grid points of the ``covered`` stretch: its first and last point and the
+    correlation of ``z`` with ``others`` shifted by −``reach`` .. ``reach`` points."""
+    idx = np.flatnonzero(covered)
+    if not len(idx):
+        return
+    for s0 in range(idx[0] + reach, idx[-1] - reach - seg // 2, seg):
+        s1 = min(s0 + seg, idx[-1] - reach)
+        yield s0, s1, np.array([np.dot(z[s0:s1], others[s0 + k:s1 + k])
+                                for k in range(-reach, reach + 1)])
+
+
+def agreement(calibrated: NDArray[np.float64], others: NDArray[np.float64], reach: int,
+              seg: int) -> float:
+    """How well a pass's calibrated profile (−ln p) lies on ``others`` (the other passes' sum
+    of normal scores): per segment the highest correlation within ``reach`` points, summed."""
+    z, covered = _normal_scores(calibrated), np.isfinite(calibrated)
+    return float(sum(max(float(c.max()), 0.0)
+                     for _, _, c in _segments(z, others, covered, reach, seg)))
+
+
+def keeps_move(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
+               recorded: list[NDArray[np.float64]], max_shift_m: float = MAX_SHIFT_M,
+               segment_m: float = SEGMENT_M) -> list[bool]:
+    """Per pass, whether its placement ``xs[i]`` lays its calibrated profile on the other
+    passes' (their sum, all at ``xs``) at least as well as its recorded positions
+    ``recorded[i]`` do (:func:`agreement`, each ``segment_m`` at its best shift within
+    ``max_shift_m``). Events above a threshold are a few per km, and on wheel-periodic impulses
+    they repeat at every wheel turn: chance pairs can pull a pass tens of metres (on a
+    development track one of five passes recorded within 3 m of the truth was moved 15–58
+    m); every defect raises a pass's profile, events or not, so the profiles can tell."""
+    fused = fuse(xs, scores, rounds=0)
+    z = _normal_scores(fused.calibrated)
+    total = z.sum(axis=0)
+    reach, seg = int(round(max_shift_m / STEP_M)), int(round(segment_m / STEP_M))
+    lo, n = float(fused.grid[0]), len(fused.grid)
+    half = int(round(WINDOW_M / STEP_M))
+    out = []
+    for i, (x, s, r) in enumerate(zip(xs, scores, recorded, strict=True)):
+        if np.array_equal(x, r):
+            out.append(True)
+            continue
+        others = total - z[i]
+        s = np.asarray(s, dtype=float).reshape(len(s), -1)
+        inside = (r >= lo) & (r <= fused.grid[-1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            alt = np.fmax.reduce([-np.log(calibrate(grid_profile(r[inside], s[inside, k], lo, n),
+                                                    half)) for k in range(s.shape[1])], axis=0)
+        out.append(agreement(fused.calibrated[i], others, reach, seg)
+                   >= agreement(alt, others, reach, seg))
+    return out
+
+
 def profile_shifts(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
                    max_scale_error: float, segment_m: float = SEGMENT_M,
                    max_shift_m: float = MAX_SHIFT_M) -> list[tuple[float, float]]:
@@ -285,28 +346,21 @@ def profile_shifts(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float6
     through the segments' shifts (Theil–Sen, its slope within ``max_scale_error``). ``(0, 0)``
     for a pass with fewer than three segments whose peak lies inside the search."""
     fused = fuse(xs, scores, rounds=0)
-    cal = fused.calibrated
-    ok = np.isfinite(cal)
-    z = np.where(ok, np.maximum(-ndtri(np.exp(-np.where(ok, cal, 0.0))), 0.0), 0.0)
+    z = _normal_scores(fused.calibrated)
     total = z.sum(axis=0)
     reach, seg = int(round(max_shift_m / STEP_M)), int(round(segment_m / STEP_M))
     out = []
     for i in range(len(xs)):
-        others = total - z[i]
-        idx = np.flatnonzero(ok[i])
         centres, shifts = [], []
-        if len(idx):
-            for s0 in range(idx[0] + reach, idx[-1] - reach - seg // 2, seg):
-                s1 = min(s0 + seg, idx[-1] - reach)
-                c = np.array([np.dot(z[i, s0:s1], others[s0 + k:s1 + k])
-                              for k in range(-reach, reach + 1)])
-                k = int(np.argmax(c))
-                if c[k] <= 0 or k in (0, 2 * reach):  # nothing in common, or at the edge
-                    continue
-                curve = c[k - 1] - 2 * c[k] + c[k + 1]
-                frac = 0.5 * (c[k - 1] - c[k + 1]) / curve if curve < 0 else 0.0
-                centres.append(float(fused.grid[(s0 + s1) // 2]))
-                shifts.append((k - reach + frac) * STEP_M)
+        for s0, s1, c in _segments(z[i], total - z[i], np.isfinite(fused.calibrated[i]),
+                                   reach, seg):
+            k = int(np.argmax(c))
+            if c[k] <= 0 or k in (0, 2 * reach):  # nothing in common, or at the edge
+                continue
+            curve = c[k - 1] - 2 * c[k] + c[k + 1]
+            frac = 0.5 * (c[k - 1] - c[k + 1]) / curve if curve < 0 else 0.0
+            centres.append(float(fused.grid[(s0 + s1) // 2]))
+            shifts.append((k - reach + frac) * STEP_M)
         if len(shifts) < 3:
             out.append((0.0, 0.0))
             continue

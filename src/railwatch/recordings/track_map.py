@@ -94,6 +94,7 @@ class PassEvents:
     group: list[str]
     covered: tuple[float, float]  # recorded position range of the recording, m
     profile: ScoreProfile | None = None  # every sample's scores (None: a scan without them)
+    start: float | None = None  # recorded position of the recording's first sample, m
 
 
 @dataclass(frozen=True)
@@ -161,7 +162,7 @@ def _read_pass(info_path: Path) -> PassEvents:
                              "numbers (an event without a position cannot be mapped)") from None
     return PassEvents(name=name, position=position, score=score, duration_s=duration,
                       channel=[r["channel"] for r in rows], group=[r["group"] for r in rows],
-                      covered=(min(lo, hi), max(lo, hi)),
+                      covered=(min(lo, hi), max(lo, hi)), start=float(lo),
                       profile=_read_profile(info_path.with_name(name + PROFILE_SUFFIX))
                       if info.get("profile") == PROFILE_KIND else None)
 
@@ -295,14 +296,15 @@ def fit_transform(x: NDArray[np.float64], ref: NDArray[np.float64], tolerance: f
 
 
 def align(passes: list[PassEvents], tolerance_m: float = 2.0,
-          search_m: float | None = 50.0) -> list[tuple[float, float]]:
+          search_m: float | None = 50.0, consensus: bool = True) -> list[tuple[float, float]]:
     """Per pass ``(a, b)``: ``a + b·position`` is the position in the map's frame.
 
     Each pass in turn is fitted (:func:`fit_transform`) to the events of all the others in
     their current frames, three rounds; a real defect is in most passes, so it votes many times
     where false events vote once. ``search_m`` bounds the offset between two passes' positions
     (None: any offset, for positions that are not the track's, such as a distance counted from
-    each pass's start).
+    each pass's start). ``consensus``: in the passes' consensus frame (:func:`_consensus_frame`);
+    otherwise in the frame of the passes left where they were recorded.
     """
     n = len(passes)
     transforms = [(0.0, 1.0)] * n
@@ -322,9 +324,21 @@ def align(passes: list[PassEvents], tolerance_m: float = 2.0,
                 moved = True
         if not moved:
             break
-    if all(b > 0 for _, b in transforms):
+    if consensus and all(b > 0 for _, b in transforms):
         transforms = _consensus_frame(passes, transforms)
     return transforms
+
+
+def verify_moves(passes: list[PassEvents], transforms: list[tuple[float, float]],
+                 scores: list[NDArray[np.float64]]) -> list[tuple[float, float]]:
+    """The moves of :func:`align` (``consensus=False``: unmoved passes are ``(0, 1)``) that the
+    score profiles confirm (:func:`fusion.keeps_move`); a pass whose profile agrees with the
+    others' better where it was recorded goes back there. Only for recorded positions that
+    are the track's (a bounded search)."""
+    positions = [p.profile.position for p in passes if p.profile is not None]
+    xs = [a + b * x for x, (a, b) in zip(positions, transforms, strict=True)]
+    keep = fusion.keeps_move(xs, scores, positions)
+    return [t if k else (0.0, 1.0) for t, k in zip(transforms, keep, strict=True)]
 
 
 def refine_by_profiles(passes: list[PassEvents], transforms: list[tuple[float, float]],
@@ -348,24 +362,37 @@ def refine_by_profiles(passes: list[PassEvents], transforms: list[tuple[float, f
 
 def _consensus_frame(passes: list[PassEvents], transforms: list[tuple[float, float]],
                      ) -> list[tuple[float, float]]:
-    """The transforms re-expressed in the frame of the passes' median odometry: where every
-    pass records track positions, no pass is the truth, and the map's position of a place is
-    the median of the positions the passes recorded there (at the two ends of the aligned
-    stretch, a line between). The median, not the mean: one odometer with a wrong wheel radius
-    (0.2 % is 20 m at 10 km) moves the mean of five passes by 4 m at the far end and the
-    median by little. Otherwise the frame stays the first pass's orientation and origin."""
+    """The transforms re-expressed in the frame of the passes' odometry where it is most
+    accurate. Where every pass records track positions, no pass is the truth, and an
+    odometer's error grows with the distance it has counted since it was set (a wheel radius
+    0.05 % off is 5 m after 10 km); so each end of the aligned stretch takes the median of the
+    positions recorded there by the passes that started at that end, and an end no pass
+    started at the median over all passes (the median, not the mean: one odometer 0.2 % off
+    moves the mean of five passes 4 m at the far end, the median little); a line between.
+    On eight development tracks with odometry alone, from 5 passes, the median over all
+    passes at both ends left the map 2–3 m from the truth on some (recall 45 % where the
+    same passes at their true positions gave 92 %; docs/track-map.md). Otherwise the frame
+    stays the first pass's orientation and origin."""
     ends = np.array([[a + b * p.covered[0], a + b * p.covered[1]]
                      for p, (a, b) in zip(passes, transforms, strict=True)])
     y = np.array([ends.min(), ends.max()])  # the aligned stretch
     if y[1] - y[0] <= 0:
         return transforms
-    recorded = np.median([(y - a) / b for a, b in transforms], axis=0)
+    at_ends = np.array([(y - a) / b for a, b in transforms])  # (passes, 2) recorded there
+    starts = [None if p.start is None else a + b * p.start
+              for p, (a, b) in zip(passes, transforms, strict=True)]
+    recorded = np.empty(2)
+    for end in (0, 1):
+        near = [i for i, s in enumerate(starts)
+                if s is not None and abs(s - y[end]) < abs(s - y[1 - end])]
+        recorded[end] = np.median(at_ends[near or slice(None), end])
     if recorded[1] - recorded[0] <= 0:
         return transforms
     # The map's position m of aligned position y: m = recorded[0] + (y − y0)·slope.
     slope = (recorded[1] - recorded[0]) / (y[1] - y[0])
     shift = recorded[0] - slope * y[0]
     return [(shift + slope * a, slope * b) for a, b in transforms]
+
 
 
 # ----------------------------------------------------------------------------- clustering
@@ -456,7 +483,10 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     profiles = [p.profile for p in passes if p.profile is not None]
     groups = tuple(dict.fromkeys(g for pr in profiles for g in pr.groups))
     per_group = [pr.by_group(groups) for pr in profiles]
-    transforms = refine_by_profiles(passes, align(passes, tolerance_m, search_m), per_group)
+    transforms = align(passes, tolerance_m, search_m, consensus=False)
+    if search_m is not None:
+        transforms = verify_moves(passes, transforms, per_group)
+    transforms = refine_by_profiles(passes, transforms, per_group)
     xs = [a + b * pr.position for pr, (a, b) in zip(profiles, transforms, strict=True)]
     fused = fusion.fuse(xs, per_group, tolerance_m)
     point = [np.nanmax(pg, axis=1) for pg in per_group]

@@ -1,0 +1,117 @@
+"""Where the fused map's positions come from: the map's frame and the check of the alignment's
+moves, switched off one at a time, on eight development tracks.
+
+Eight development tracks of each kind (seeds 12-19; the test track, seed 11, is not used):
+10 km, 40 defects, stage-5-like and stage-8-like nuisance with loud stretches, passes 1-2
+train the matched filter, passes 3-7 and 8-12 make two 5-pass maps per track (16 maps per
+cell). Passes placed by odometry alone (`generate-run --passes` defaults: offset 1 m, drift
+0.05 %, walk 0.3 m per √km), by the GNSS-aided odometry and at their true positions. Recall
+within ±2 m / false places per km of `track-map`'s default rule, the mean over the 16 maps
+(the lowest recall of the 16 in brackets). The variants:
+
+1. **median frame, no check**: the map's frame is the median of every pass's odometry at each
+   end of the aligned stretch, and the events' alignment is taken as it is (the map before
+   this benchmark);
+2. **+ check of the moves**: a pass that the events moved goes back where it was recorded
+   when its score profile lies on the other passes' better there (`fusion.keeps_move`);
+3. **frame from the starts, no check**: each end of the stretch takes the median of the passes
+   that started at that end (an odometer errs little near where it was set);
+4. **both** (the map as it is).
+
+Run after `benchmarks/track_map.py` (which makes the seed-12 tracks): `make
+bench-track-map-frame`, about 10 minutes on 2 cores, and half a minute more for each track of
+seeds 13-19 not yet made and scanned (made here, once).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+
+ROLES = {"dev": 12, **{f"dev{seed - 11}": seed for seed in range(13, 20)}}
+SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10)}
+PLACEMENTS = {"odometry alone": None, "GNSS-aided": bench.ODOMETRIES["GNSS-aided"],
+              "true positions": (0.0, 0.0, 0.0)}
+VARIANTS = ("median frame, no check", "+ check of the moves", "frame from the starts, no check",
+            "both (the map)")
+
+
+@contextmanager
+def variant(index: int, passes: list) -> Iterator[None]:  # type: ignore[type-arg]
+    """The map's rules of ``VARIANTS[index]`` for ``passes`` (their starts hidden for the
+    median frame)."""
+    from railwatch.recordings import track_map as tm
+
+    saved_verify, saved_starts = tm.verify_moves, [p.start for p in passes]
+    if index in (0, 2):
+        tm.verify_moves = lambda passes, transforms, scores: transforms  # type: ignore[assignment]
+    if index in (0, 1):
+        for p in passes:
+            p.start = None
+    try:
+        yield
+    finally:
+        tm.verify_moves = saved_verify  # type: ignore[assignment]
+        for p, s in zip(passes, saved_starts, strict=True):
+            p.start = s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-frame.md"))
+    args = parser.parse_args()
+    from railwatch.recordings import track_map as tm
+    from railwatch.report.pages import write_markdown
+
+    bench.SEEDS.update(ROLES)
+    low = min(bench.FACTORS)
+    cells: dict[tuple[str, str, int], list[tuple[float, float]]] = {}
+    for kind in bench.KINDS:
+        for role in ROLES:
+            folder = bench.track(args.work, kind, role)
+            base = bench.above(bench.scanned(folder, "matched-filter", low), 1.0, low)
+            truth = tm.read_truth(folder / "track.defects.csv")
+            for placed, odometry in PLACEMENTS.items():
+                events = base if odometry is None else bench.with_odometry(
+                    base, folder, kind, role, odometry,
+                    "-true" if odometry == (0.0, 0.0, 0.0) else "-gnss")
+                passes = tm.read_scan(events)
+                for subset in SUBSETS.values():
+                    use = passes[subset]
+                    lo, hi = tm.covered_range(use)
+                    covered = tm.on_stretch(truth, lo, hi)
+                    for index in range(len(VARIANTS)):
+                        with variant(index, use):
+                            shown = tm.reported_fused(tm.fused_map(use)[0])
+                        s = tm.score_locations(shown, covered, hi - lo)
+                        cells.setdefault((kind, placed, index), []).append(
+                            (s["recall"], s["false_per_km"]))
+            print(kind, role, "done", flush=True)
+    rows = ["| nuisance | placed by | " + " | ".join(VARIANTS) + " |",
+            "|---|---|" + "---|" * len(VARIANTS)]
+    for kind in bench.KINDS:
+        for placed in PLACEMENTS:
+            text = []
+            for index in range(len(VARIANTS)):
+                v = np.array(cells[(kind, placed, index)])
+                text.append(f"{v[:, 0].mean():.1%} / {v[:, 1].mean():.2f} "
+                            f"({v[:, 0].min():.0%})")
+            rows.append(f"| {kind} | {placed} | " + " | ".join(text) + " |")
+    command, items = bench.page_head("track_map_frame.py", __doc__)
+    lines = ["# The fused map's frame and the check of the alignment's moves", "", command, "",
+             *items, "", *rows]
+    print(write_markdown(args.out, lines))
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
