@@ -67,13 +67,13 @@ bench-recordings-nuisance: $(STAMP)  ## train on two runs, detect on a third: st
 bench-track-map: $(STAMP)  ## the track map of 10-km tracks against 1, 2, 5, 10 passes; scan throughput (~40 min)
 	$(BIN)/python benchmarks/track_map.py --work runs/bench-track-map
 
-bench-track-map-loss: $(STAMP)  ## where the track map loses defects: oracle, per pass, alignment (~10 min, after bench-track-map)
+bench-track-map-loss: $(STAMP)  ## where the track map loses defects: oracle, per pass, alignment (~30 min, after bench-track-map)
 	$(BIN)/python benchmarks/track_map_loss.py --work runs/bench-track-map
 
 bench-track-map-fusion: $(STAMP)  ## what each rule of the fused map adds, on development tracks (~15 min, after bench-track-map)
 	$(BIN)/python benchmarks/track_map_fusion.py --work runs/bench-track-map
 
-bench-track-map-frame: $(STAMP)  ## the fused map's frame and the check of the alignment's moves, 8 development tracks (~10 min, after bench-track-map)
+bench-track-map-frame: $(STAMP)  ## the fused map's frame and the check of the alignment's moves, 8 development tracks (~30 min, after bench-track-map)
 	$(BIN)/python benchmarks/track_map_frame.py --work runs/bench-track-map
 
 bench-matched-filter-ridge: $(STAMP)  ## the matched filter's ridge on benchmark windows and on windows made unlike ours (~5 min)

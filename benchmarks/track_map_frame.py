@@ -19,8 +19,9 @@ within ±2 m / false places per km of `track-map`'s default rule, the mean over 
 4. **both** (the map as it is).
 
 Run after `benchmarks/track_map.py` (which makes the seed-12 tracks): `make
-bench-track-map-frame`, about 10 minutes on 2 cores, and half a minute more for each track of
-seeds 13-19 not yet made and scanned (made here, once).
+bench-track-map-frame`, about 30 minutes on 2 cores (10 with `--placements "odometry alone"`),
+and half a minute more for each track of seeds 13-19 not yet made and scanned (made here,
+once).
 """
 
 from __future__ import annotations
@@ -68,7 +69,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-frame.md"))
+    parser.add_argument("--placements", default=",".join(PLACEMENTS),
+                        help="comma-separated: which of the placements to measure")
     args = parser.parse_args()
+    placements = {k: v for k, v in PLACEMENTS.items() if k in args.placements.split(",")}
     from railwatch.recordings import track_map as tm
     from railwatch.report.pages import write_markdown
 
@@ -80,7 +84,7 @@ def main() -> None:
             folder = bench.track(args.work, kind, role)
             base = bench.above(bench.scanned(folder, "matched-filter", low), 1.0, low)
             truth = tm.read_truth(folder / "track.defects.csv")
-            for placed, odometry in PLACEMENTS.items():
+            for placed, odometry in placements.items():
                 events = base if odometry is None else bench.with_odometry(
                     base, folder, kind, role, odometry,
                     "-true" if odometry == (0.0, 0.0, 0.0) else "-gnss")
@@ -99,7 +103,7 @@ def main() -> None:
     rows = ["| nuisance | placed by | " + " | ".join(VARIANTS) + " |",
             "|---|---|" + "---|" * len(VARIANTS)]
     for kind in bench.KINDS:
-        for placed in PLACEMENTS:
+        for placed in placements:
             text = []
             for index in range(len(VARIANTS)):
                 v = np.array(cells[(kind, placed, index)])
