@@ -1,0 +1,194 @@
+"""Wheel-periodic impulses out of the signal before the detector: an experiment on development
+tracks, not yet a part of railwatch.
+
+Stage 8 adds to every channel of every pass one impulse per turn of a wheel, at a spacing L
+along the track (2.25-11.25 m, drawn per pass and channel); they are what the fused map loses
+on stage 8 (docs/track-map.md). Here each pass's raw signal (2000 Hz) has them taken out by a
+**comb in distance**: every sample less the mean of the samples one and two wheel turns before
+and after it (±L, ±2L along the pass's recorded position, linear interpolation; at the ends of
+the pass the turns that exist), then the matched filter is trained on passes 1-2 and passes
+3-12 are scanned and mapped as in `benchmarks/track_map.py` (odometry alone, `track-map`'s
+default rule). The wheel turn L of each pass and channel is:
+
+1. **none**: no comb (the scans of `benchmarks/track_map.py`);
+2. **true L** (an oracle: the synthesiser's own spacing);
+3. **estimated L**: from the pass's own signal, the peak of its cepstrum over distance (the
+   signal on a 2-cm grid of its recorded position, the log power spectrum of each 200-m block,
+   Hann window, inverse-transformed and averaged over the blocks) between 1.5 and 15 m; the
+   comb only where that peak stands out of the cepstrum over the range by at least 5 robust
+   standard deviations (median and MAD), otherwise the channel is left as it is. A peak at a
+   multiple of L combs the impulses away too.
+
+Also measured: how often the estimate passes the gate and lands on L or a multiple (within
+3 %), on the stage-8 tracks, and how often the gate passes on the stage-5 development track
+(no impulses: each pass should be left as it is).
+
+Run after `benchmarks/track_map.py` and `benchmarks/track_map_fusion.py` (which make the
+seed-12 and seed-13 tracks): `python benchmarks/track_map_wheel.py`, about 5 minutes on 2
+cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+sys.path.insert(0, str(Path(__file__).parent))
+import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+
+ROLES = {"dev": 12, "dev2": 13}
+SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10), "3-12": slice(0, 10)}
+GRID_M, BLOCK_M, SEARCH_M, GATE, TURNS = 0.02, 200.0, (1.5, 15.0), 5.0, 2
+
+
+def true_periods(pass_seed: int) -> list[float]:
+    """The synthesiser's impulse spacing of each channel of the pass with this seed
+    (:func:`railwatch.synthetic.runs._impulses`: ω, T, β then the first impulse, per channel,
+    from the pass's impulse stream)."""
+    from railwatch.synthetic.runs import CHANNEL_GROUPS, MEAN_SPEED
+    from railwatch.synthetic.stages import GROUPS
+
+    rng = np.random.default_rng([pass_seed, 208])
+    out = []
+    for group in CHANNEL_GROUPS:
+        g = GROUPS[group]
+        rng.uniform(*g.omega)
+        period = rng.uniform(*g.imp_period)
+        rng.uniform(*g.beta)
+        rng.uniform(0.0, period * MEAN_SPEED)
+        out.append(period * MEAN_SPEED)
+    return out
+
+
+def cepstral_period(x: NDArray[np.float64], v: NDArray[np.float64]) -> tuple[float, float]:
+    """The cepstrum's peak over distance (module docstring, 3.): (spacing in m, its robust z)."""
+    grid = np.arange(x[0], x[-1], GRID_M)
+    u = np.interp(grid, x, v)
+    block = int(BLOCK_M / GRID_M)
+    window = np.hanning(block)
+    total = np.zeros(block)
+    for s in range(0, len(u) - block + 1, block):
+        seg = (u[s:s + block] - u[s:s + block].mean()) * window
+        power = np.abs(np.fft.rfft(seg)) ** 2
+        total += np.fft.irfft(np.log(power + 1e-12 * power.max()), block)
+    q = np.arange(block) * GRID_M
+    inside = (q >= SEARCH_M[0]) & (q <= SEARCH_M[1])
+    values = total[inside]
+    k = int(np.argmax(values))
+    med = np.median(values)
+    mad = 1.4826 * np.median(np.abs(values - med)) + 1e-12
+    return float(q[inside][k]), float((values[k] - med) / mad)
+
+
+def comb(x: NDArray[np.float64], v: NDArray[np.float64], period: float) -> NDArray[np.float64]:
+    """Each sample less the mean of the samples ±1 … ±TURNS periods away that the pass has."""
+    total, count = np.zeros_like(v), np.zeros_like(v)
+    for k in [*range(-TURNS, 0), *range(1, TURNS + 1)]:
+        at = x + k * period
+        ok = (at >= x[0]) & (at <= x[-1])
+        total[ok] += np.interp(at[ok], x, v)
+        count += ok
+    return v - np.where(count > 0, total / np.maximum(count, 1), 0.0)
+
+
+def combed_track(work: Path, kind: str, role: str, variant: str,
+                 stats: list[tuple[float, float, float]]) -> Path:
+    """The track's folder with every pass combed (``variant``: "true L" or "estimated L");
+    ``stats`` gets (estimated L, z, true L) per pass and channel."""
+    from railwatch.synthetic.runs import CHANNELS
+
+    src = bench.track(work, kind, role)
+    dst = work / f"{src.name}-wheel-{'true' if variant == 'true L' else 'estimated'}"
+    dst.mkdir(exist_ok=True)
+    for f in ["layout.toml", "track.defects.csv", *(p.name for p in src.glob("pass*.csv"))]:
+        shutil.copy(src / f, dst / f)
+    for i in range(1, bench.PASSES + 1):
+        data = pd.read_parquet(src / f"pass{i:02d}.parquet")
+        position = data["position"].to_numpy()
+        x = position if position[-1] > position[0] else -position
+        truth = true_periods(ROLES[role] * 1000 + i) if kind == "stage 8" else [np.nan] * 6
+        for c, channel in enumerate(CHANNELS):
+            v = data[channel].to_numpy().astype(float)
+            period, z = cepstral_period(x, v)
+            stats.append((period, z, truth[c]))
+            use = truth[c] if variant == "true L" else (period if z >= GATE else None)
+            if use is not None and np.isfinite(use):
+                data[channel] = comb(x, v, use).astype(np.float32)
+        out = dst / f"pass{i:02d}.parquet"
+        if not out.exists():
+            data.to_parquet(out)
+    return dst
+
+
+def curve(scan: Path, truth: Path) -> list[str]:
+    from railwatch.recordings import track_map as tm
+
+    passes = tm.read_scan(scan)
+    defects = tm.read_truth(truth)
+    cells = []
+    for subset in SUBSETS.values():
+        use = passes[subset]
+        lo, hi = tm.covered_range(use)
+        s = tm.score_locations(tm.reported_fused(tm.fused_map(use)[0]),
+                               tm.on_stretch(defects, lo, hi), hi - lo)
+        cells.append(f"{s['recall']:.0%} / {s['false_per_km']:.2f}")
+    return cells
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-wheel.md"))
+    args = parser.parse_args()
+    from railwatch.report.pages import write_markdown
+
+    bench.SEEDS.update(ROLES)
+    low = min(bench.FACTORS)
+    rows = ["| nuisance | track (seed) | wheel turn L | " + " | ".join(
+        f"passes {s}" for s in SUBSETS) + " |", "|---|---|---|" + "---|" * len(SUBSETS)]
+    gate_rows = []
+    runs = [("stage 8", "dev"), ("stage 8", "dev2"), ("stage 5", "dev")]
+    for kind, role in runs:
+        folder = bench.track(args.work, kind, role)
+        plain = bench.above(bench.scanned(folder, "matched-filter", low), 1.0, low)
+        rows.append(f"| {kind} | {ROLES[role]} | none | "
+                    + " | ".join(curve(plain, folder / "track.defects.csv")) + " |")
+        for variant in ("true L", "estimated L") if kind == "stage 8" else ("estimated L",):
+            stats: list[tuple[float, float, float]] = []
+            combed = combed_track(args.work, kind, role, variant, stats)
+            scan = bench.above(bench.scanned(combed, "matched-filter", low), 1.0, low)
+            rows.append(f"| {kind} | {ROLES[role]} | {variant} | "
+                        + " | ".join(curve(scan, folder / "track.defects.csv")) + " |")
+            print(rows[-1], flush=True)
+            if variant == "estimated L":
+                s = np.array(stats)
+                passed = s[:, 1] >= GATE
+                ratio = s[:, 0] / s[:, 2]
+                on_l = np.isfinite(ratio) & (np.abs(ratio - np.round(ratio))
+                                             < 0.03 * np.maximum(np.round(ratio), 1)) \
+                    & (np.round(ratio) >= 1)
+                gate_rows.append(
+                    f"| {kind} | {ROLES[role]} | {len(s)} | {int(passed.sum())} | "
+                    + (f"{int((passed & on_l).sum())} | {int((~passed & on_l).sum())} |"
+                       if kind == "stage 8" else "– (no impulses) | – |"))
+    command, items = bench.page_head("track_map_wheel.py", __doc__)
+    lines = ["# Wheel-periodic impulses combed out before the detector (an experiment)", "",
+             command, "", *items, "",
+             "Recall within ±2 m / false places per km of the fused map (matched filter, "
+             "odometry alone):", "", *rows, "",
+             "The estimate of L, per pass and channel (12 passes × 6 channels per track):", "",
+             "| nuisance | track (seed) | channels | gate passed | of those on L or a multiple "
+             "| on L or a multiple but below the gate |", "|---|---|---|---|---|---|",
+             *gate_rows]
+    print(write_markdown(args.out, lines))
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
