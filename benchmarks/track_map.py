@@ -43,7 +43,11 @@ KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
          "stage 8": ["--stage", "8", "--loud-stretches"]}
 #: Which detectors run on which nuisance (aft-attention finds few defects per pass: stage 5 only).
 RUNS = (("stage 5", "context-glr"), ("stage 5", "aft-attention"), ("stage 8", "context-glr"),
-        ("stage 5", "matched-filter"), ("stage 8", "matched-filter"))
+        ("stage 5", "matched-filter"), ("stage 8", "matched-filter"),
+        ("stage 5", "matched-filter-wheel"), ("stage 8", "matched-filter-wheel"))
+#: Labels of runs that train a registry detector with `train` flags: the matched filter with
+#: the wheel comb (`train --wheel-comb`).
+TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 ODOMETRIES = {"odometry alone": None, "GNSS-aided": (1.0, 0.0001, 0.1)}
 SEEDS = {"test": 11, "dev": 12}
 PASSES, TRAIN = 12, 2
@@ -84,16 +88,18 @@ def scanned(folder: Path, detector: str, factor: float = 1.0, settings: tuple[st
             label: str | None = None) -> Path:
     """Train ``detector`` (with ``--set`` ``settings``) on the first passes, scan the others
     with ``factor`` × the model's event threshold; the scan folder. ``label`` names the model
-    and scan folders (default: the detector)."""
+    and scan folders (default: the detector); a label of TRAIN_FLAGS trains its detector with
+    its flags."""
     from railwatch.recordings.pipeline import load_recording_model
 
     label = label or detector
+    detector, flags = TRAIN_FLAGS.get(detector, (detector, ()))
     model = folder / f"model-{label}"
     if not (model / "detector.json").exists():
         train = [str(folder / f"pass{i:02d}.parquet") for i in range(1, TRAIN + 1)]
         sets = [arg for setting in settings for arg in ("--set", setting)]
-        railwatch("train", "--detector", detector, *sets, "--recordings", *train, "--layout",
-                  str(folder / "layout.toml"), "--out", str(model))
+        railwatch("train", "--detector", detector, *sets, *flags, "--recordings", *train,
+                  "--layout", str(folder / "layout.toml"), "--out", str(model))
     out = folder / (f"scan-{label}" if factor == 1.0 else f"scan-{label}-x{factor:g}")
     test = [str(folder / f"pass{i:02d}.parquet") for i in range(TRAIN + 1, PASSES + 1)]
     lower = [] if factor == 1.0 else [
@@ -322,7 +328,7 @@ def main() -> None:
 def _figure(results):  # type: ignore[no-untyped-def]
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(11, 3.8), layout="constrained")
+    fig = Figure(figsize=(13, 3.8), layout="constrained")
     ax_r, ax_f = fig.subplots(1, 2)
     colours: dict[tuple[str, str, str], str] = {}
     for (kind, det, odo, label), (_, _, rows) in results.items():
@@ -341,7 +347,7 @@ def _figure(results):  # type: ignore[no-untyped-def]
     ax_r.set(xlabel="passes", ylabel="recall of defect positions (±2 m)", xticks=COUNTS,
              ylim=(0, 1.02))
     ax_f.set(xlabel="passes", ylabel="false locations per km", xticks=COUNTS, yscale="symlog")
-    ax_r.legend(fontsize=6)
+    fig.legend(loc="outside right upper", fontsize=7)
     for ax in (ax_r, ax_f):
         ax.grid(alpha=0.3)
     return fig

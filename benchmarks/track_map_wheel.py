@@ -1,14 +1,14 @@
-"""Wheel-periodic impulses out of the signal before the detector: an experiment on development
-tracks, not yet a part of railwatch.
+"""Wheel-periodic impulses out of the signal before the detector (`train --wheel-comb`, its
+turn estimated or, as an oracle, the synthesiser's), on development tracks.
 
 Stage 8 adds to every channel of every pass one impulse per turn of a wheel, at a spacing L
 along the track (2.25-11.25 m, drawn per pass and channel); they are what the fused map loses
 on stage 8 (docs/track-map.md). Here each pass's raw signal (2000 Hz) has them taken out by a
 **comb in distance**: every sample less the mean of the samples one and two wheel turns before
 and after it (±L, ±2L along the pass's recorded position, linear interpolation; at the ends of
-the pass the turns that exist), then the matched filter is trained on passes 1-2 and passes
-3-12 are scanned and mapped as in `benchmarks/track_map.py` (odometry alone, `track-map`'s
-default rule). The wheel turn L of each pass and channel is:
+the pass the turns that exist; `railwatch.recordings.wheel`), then the matched filter is trained
+on passes 1-2 and passes 3-12 are scanned and mapped as in `benchmarks/track_map.py` (odometry
+alone, `track-map`'s default rule). The wheel turn L of each pass and channel is:
 
 1. **none**: no comb (the scans of `benchmarks/track_map.py`);
 2. **true L** (an oracle: the synthesiser's own spacing);
@@ -17,7 +17,7 @@ default rule). The wheel turn L of each pass and channel is:
    Hann window, inverse-transformed and averaged over the blocks) between 1.5 and 15 m; the
    comb only where that peak stands out of the cepstrum over the range by at least 5 robust
    standard deviations (median and MAD), otherwise the channel is left as it is. A peak at a
-   multiple of L combs the impulses away too.
+   multiple of L combs the impulses away too. This is what `train --wheel-comb` does.
 
 Also measured: how often the estimate passes the gate and lands on L or a multiple (within
 3 %), on the stage-8 tracks, and how often the gate passes on the stage-5 development track
@@ -37,14 +37,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
 
 sys.path.insert(0, str(Path(__file__).parent))
 import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
 
 ROLES = {"dev": 12, "dev2": 13}
 SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10), "3-12": slice(0, 10)}
-GRID_M, BLOCK_M, SEARCH_M, GATE, TURNS = 0.02, 200.0, (1.5, 15.0), 5.0, 2
+TURNS = 2
 
 
 def true_periods(pass_seed: int) -> list[float]:
@@ -66,41 +65,12 @@ def true_periods(pass_seed: int) -> list[float]:
     return out
 
 
-def cepstral_period(x: NDArray[np.float64], v: NDArray[np.float64]) -> tuple[float, float]:
-    """The cepstrum's peak over distance (module docstring, 3.): (spacing in m, its robust z)."""
-    grid = np.arange(x[0], x[-1], GRID_M)
-    u = np.interp(grid, x, v)
-    block = int(BLOCK_M / GRID_M)
-    window = np.hanning(block)
-    total = np.zeros(block)
-    for s in range(0, len(u) - block + 1, block):
-        seg = (u[s:s + block] - u[s:s + block].mean()) * window
-        power = np.abs(np.fft.rfft(seg)) ** 2
-        total += np.fft.irfft(np.log(power + 1e-12 * power.max()), block)
-    q = np.arange(block) * GRID_M
-    inside = (q >= SEARCH_M[0]) & (q <= SEARCH_M[1])
-    values = total[inside]
-    k = int(np.argmax(values))
-    med = np.median(values)
-    mad = 1.4826 * np.median(np.abs(values - med)) + 1e-12
-    return float(q[inside][k]), float((values[k] - med) / mad)
-
-
-def comb(x: NDArray[np.float64], v: NDArray[np.float64], period: float) -> NDArray[np.float64]:
-    """Each sample less the mean of the samples ±1 … ±TURNS periods away that the pass has."""
-    total, count = np.zeros_like(v), np.zeros_like(v)
-    for k in [*range(-TURNS, 0), *range(1, TURNS + 1)]:
-        at = x + k * period
-        ok = (at >= x[0]) & (at <= x[-1])
-        total[ok] += np.interp(at[ok], x, v)
-        count += ok
-    return v - np.where(count > 0, total / np.maximum(count, 1), 0.0)
-
-
 def combed_track(work: Path, kind: str, role: str, variant: str,
                  stats: list[tuple[float, float, float]]) -> Path:
     """The track's folder with every pass combed (``variant``: "true L" or "estimated L");
     ``stats`` gets (estimated L, z, true L) per pass and channel."""
+    from railwatch.recordings import wheel
+    from railwatch.recordings.readers import Chunk
     from railwatch.synthetic.runs import CHANNELS
 
     src = bench.track(work, kind, role)
@@ -110,19 +80,21 @@ def combed_track(work: Path, kind: str, role: str, variant: str,
         shutil.copy(src / f, dst / f)
     for i in range(1, bench.PASSES + 1):
         data = pd.read_parquet(src / f"pass{i:02d}.parquet")
-        position = data["position"].to_numpy()
-        x = position if position[-1] > position[0] else -position
+        fs = 1.0 / float(np.median(np.diff(data["time"].to_numpy()[:1000])))
+        chunk = Chunk(0, data[list(CHANNELS)].to_numpy(np.float32),
+                      position=data["position"].to_numpy())
+        peaks = wheel.cepstral_peaks([chunk], fs, len(CHANNELS))
         truth = true_periods(ROLES[role] * 1000 + i) if kind == "stage 8" else [np.nan] * 6
-        for c, channel in enumerate(CHANNELS):
-            v = data[channel].to_numpy().astype(float)
-            period, z = cepstral_period(x, v)
-            stats.append((period, z, truth[c]))
-            use = truth[c] if variant == "true L" else (period if z >= GATE else None)
-            if use is not None and np.isfinite(use):
-                data[channel] = comb(x, v, use).astype(np.float32)
+        stats += [(turn, z, true) for (turn, z), true in zip(peaks, truth, strict=True)]
         out = dst / f"pass{i:02d}.parquet"
-        if not out.exists():
-            data.to_parquet(out)
+        if out.exists():
+            continue
+        turns = [t if np.isfinite(t) else None for t in truth] if variant == "true L" else \
+            [turn if z >= wheel.GATE else None for turn, z in peaks]
+        comb = wheel.Comb(turns, TURNS, fs)
+        combed = np.concatenate([c.data for c in comb.push(chunk) + comb.close()])
+        data[list(CHANNELS)] = combed
+        data.to_parquet(out)
     return dst
 
 
@@ -146,6 +118,7 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-wheel.md"))
     args = parser.parse_args()
+    from railwatch.recordings import wheel
     from railwatch.report.pages import write_markdown
 
     bench.SEEDS.update(ROLES)
@@ -168,7 +141,7 @@ def main() -> None:
             print(rows[-1], flush=True)
             if variant == "estimated L":
                 s = np.array(stats)
-                passed = s[:, 1] >= GATE
+                passed = s[:, 1] >= wheel.GATE
                 ratio = s[:, 0] / s[:, 2]
                 on_l = np.isfinite(ratio) & (np.abs(ratio - np.round(ratio))
                                              < 0.03 * np.maximum(np.round(ratio), 1)) \

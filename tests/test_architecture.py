@@ -24,6 +24,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("railwatch.windows", "railwatch.recordings.layout"),  # file formats
     ("railwatch.recordings", "railwatch.recordings.readers",
      "railwatch.recordings.prepare", "railwatch.recordings.fusion",
+     "railwatch.recordings.wheel",
      "railwatch.scoring"),  # recordings; the scoring library; evidence fused across passes
     ("railwatch.synthetic",),  # synthetic windows and runs (runs written as recordings)
     ("railwatch.detectors",),

@@ -151,3 +151,44 @@ def test_short_window_and_a_run_without_defects(runs: Path, tmp_path: Path) -> N
                  str(tmp_path / "calm.parquet"), "--out", str(tmp_path / "e.json"), "--plot",
                  str(tmp_path / "e.png"), "--truth", str(tmp_path / "calm.defects.csv")]) == 0
     assert isinstance(json.loads((tmp_path / "e.json").read_text()), list)
+
+
+def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``train --wheel-comb`` keeps the comb in the model, ``detect`` combs each recording the
+    same way (stage 8: impulses on every channel); a layout without position or speed, and
+    windows instead of recordings, are one-line errors."""
+    from railwatch.recordings.pipeline import prepared_chunks
+
+    run = tmp_path / "run.parquet"
+    assert main(["-q", "generate-run", "--minutes", "3", "--stage", "8", "--seed", "3",
+                 "--out", str(run)]) == 0
+    layout = tmp_path / "run.layout.toml"
+    model = tmp_path / "model"
+    assert main(["-q", "train", "--detector", "matched-filter", "--wheel-comb", "--recordings",
+                 str(run), "--layout", str(layout), "--out", str(model)]) == 0
+    rm = load_recording_model(model)
+    assert rm.preparation.wheel_turns == 2
+    rec = Recording(run, rm.layout)
+    raw = np.concatenate([c.data for c in rec.chunks()])
+    combed = np.concatenate([c.data for c in prepared_chunks(rec, rm.preparation)])
+    assert combed.shape == raw.shape
+    changed = [not np.allclose(combed[:, c], raw[:, c]) for c in range(raw.shape[1])]
+    assert any(changed), "no channel combed on a stage-8 run"
+    assert main(["-q", "detect", "--model", str(model), "--recording", str(run), "--out",
+                 str(tmp_path / "e.csv")]) == 0
+    assert read_events(tmp_path / "e.csv")
+
+    bare = tmp_path / "bare.toml"
+    bare.write_text("\n".join(line for line in layout.read_text().splitlines()
+                              if not line.startswith(("speed", "position"))))
+    windows = tmp_path / "w.npz"
+    assert main(["-q", "generate", "--stage", "5", "--n", "16", "--out", str(windows)]) == 0
+    for args, message in [
+        (["--recordings", str(run), "--layout", str(bare)], "position or speed"),
+        (["--data", str(windows)], "works on recordings"),
+    ]:
+        assert main(["train", "--detector", "matched-filter", "--wheel-comb", *args,
+                     "--out", str(tmp_path / "m2")]) != 0
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "m2").exists()

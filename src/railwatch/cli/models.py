@@ -39,7 +39,11 @@ and --layout a TOML/YAML file naming the channel columns, their sensor groups an
   ...
 They are resampled (2000 -> 100 Hz by default), cut into 2-s windows every 1 s and trained on
 without labels; the model folder keeps the layout, the preparation and an event threshold
-for 'railwatch detect'.""")
+for 'railwatch detect'. --wheel-comb takes out, before resampling, impulses that repeat at every
+turn of a wheel (flat or out-of-round wheels): each channel's turn is found in each recording
+(its cepstrum over distance; channels without a clear one are left alone) and every sample
+loses the mean of the samples 1 and 2 turns before and after it. It needs a position or speed
+column; detect and scan then do the same to every recording.""")
 @click.option("--detector", "name", required=True, metavar="NAME",
               help="Registry name (see 'railwatch detectors'), e.g. aft-attention.")
 @click.option("--data", type=click.Path(path_type=Path),
@@ -55,6 +59,9 @@ for 'railwatch detect'.""")
               help="Window length in seconds (recordings).")
 @click.option("--hop", "hop_s", type=float, default=1.0, show_default=True,
               help="Seconds between training windows (recordings).")
+@click.option("--wheel-comb", is_flag=True,
+              help="Comb out wheel-periodic impulses before resampling (recordings with a "
+                   "position or speed column; see below).")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Model folder to write (replaced only when training succeeded).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path),
@@ -64,8 +71,8 @@ for 'railwatch detect'.""")
 @click.pass_obj
 def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
           more_recordings: tuple[Path, ...], layout_file: Path | None, resample: str,
-          window_s: float, hop_s: float, out: Path, config_file: Path | None,
-          settings: tuple[str, ...]) -> None:
+          window_s: float, hop_s: float, wheel_comb: bool, out: Path,
+          config_file: Path | None, settings: tuple[str, ...]) -> None:
     """Train a detector, without labels, on a window file or on recordings, and save it.
 
     \b
@@ -84,6 +91,9 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     if (data is None) == (not paths):
         raise RailwatchError("give either --data WINDOWS.npz or --recordings FILE... --layout "
                              "LAYOUT")
+    if wheel_comb and data is not None:
+        raise RailwatchError("--wheel-comb works on recordings (it needs the distance "
+                             "travelled): train with --recordings FILE... --layout LAYOUT")
     overrides = {"progress": obj["progress"], **read_overrides(config_file, settings)}
     detector = create(name, overrides)
     model_dir(out)
@@ -102,14 +112,18 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     from railwatch.recordings.pipeline import fit_recording_model, training_windows
     from railwatch.recordings.prepare import Preparation
     from railwatch.recordings.readers import Recording
+    from railwatch.recordings.wheel import NEEDS_TRAVEL
 
     if layout_file is None:
         raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
                              "see 'railwatch train --help')")
     layout = load_layout(layout_file)
     prep = Preparation(rate=parse_rate(resample), window_s=window_s, train_hop_s=hop_s,
-                       detect_hop_s=min(Preparation.detect_hop_s, window_s))
+                       detect_hop_s=min(Preparation.detect_hop_s, window_s),
+                       wheel_turns=2 if wheel_comb else 0)
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
+    if wheel_comb and not (layout.position or layout.speed):
+        raise RailwatchError(NEEDS_TRAVEL)
     sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
     total = sum(r.duration_s for r in sources)
     with progress_seconds(total, "reading") as bar:

@@ -13,7 +13,7 @@ import csv
 import io
 import json
 import os
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -26,9 +26,10 @@ from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError, one_line
+from railwatch.recordings import wheel
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
-from railwatch.recordings.readers import CHUNK_ROWS, Recording
+from railwatch.recordings.readers import CHUNK_ROWS, Chunk, Recording
 from railwatch.recordings.stream import Event, StreamingDetector
 from railwatch.scoring.thresholds import GumbelNull, ThresholdRule
 
@@ -37,6 +38,15 @@ EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "thre
 
 
 # ----------------------------------------------------------------------------- training
+def prepared_chunks(recording: Recording, prep: Preparation,
+                    rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
+    """The recording's chunks as the detector is to see them before resampling: as read, or
+    with the wheel's turns combed out (``prep.wheel_turns``, :mod:`railwatch.recordings.wheel`)."""
+    if prep.wheel_turns:
+        return wheel.combed(recording, prep.wheel_turns, rows)
+    return recording.chunks(rows)
+
+
 def training_windows(recordings: Sequence[Recording], prep: Preparation,
                      progress: Callable[[int], None] | None = None) -> NDArray[np.float32]:
     """Windows (N, T, C) of every recording: resampled, framed every ``train_hop_s``."""
@@ -48,7 +58,7 @@ def training_windows(recordings: Sequence[Recording], prep: Preparation,
         hop = prep.samples(prep.train_hop_s, layout.fs, "the training hop")
         resampler = Resampler(*prep.ratio(layout.fs), len(layout.channels))
         parts = []
-        for chunk in rec.chunks():
+        for chunk in prepared_chunks(rec, prep):
             parts.append(resampler.push(chunk.data))
             if progress:
                 progress(len(chunk))
@@ -230,7 +240,7 @@ def detect(model: Detector, recording: Recording, prep: Preparation,
                                on_samples=trace.add,
                                on_centres=None if profile is None else profile.add)
     events: list[Event] = []
-    for chunk in recording.chunks(chunk_rows):
+    for chunk in prepared_chunks(recording, prep, chunk_rows):
         events += stream.push(chunk)
         if progress:
             progress(len(chunk))

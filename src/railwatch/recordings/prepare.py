@@ -32,6 +32,9 @@ class Preparation:
     window_s: float = 2.0  # window length (the benchmark's 2 s)
     train_hop_s: float = 1.0  # hop between training windows
     detect_hop_s: float = 0.5  # hop between scored windows in detect and streaming
+    #: Wheel turns on either side combed out before resampling (:mod:`railwatch.recordings.wheel`;
+    #: 0: none, ``train --wheel-comb``: 2).
+    wheel_turns: int = 0
 
     def output_rate(self, fs: float) -> float:
         return fs if self.rate is None else float(self.rate)
@@ -61,6 +64,9 @@ class Preparation:
         hop = self.samples(self.detect_hop_s, fs, "the detection hop")
         if window < 2:
             raise RailwatchError(f"a window of {self.window_s:g} s is under two samples")
+        if self.wheel_turns not in range(0, 6):
+            raise RailwatchError(f"wheel_turns is {self.wheel_turns!r}: a whole number of turns "
+                                 "from 0 (no comb) to 5")
         if hop > window:
             raise RailwatchError(f"a detection hop of {self.detect_hop_s:g} s is longer than the "
                                  f"{self.window_s:g}-s window: samples would go unscored")
