@@ -174,9 +174,11 @@ def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys) -> None:  #
     assert combed.shape == raw.shape
     changed = [not np.allclose(combed[:, c], raw[:, c]) for c in range(raw.shape[1])]
     assert any(changed), "no channel combed on a stage-8 run"
-    assert main(["-q", "detect", "--model", str(model), "--recording", str(run), "--out",
+    assert main(["detect", "--model", str(model), "--recording", str(run), "--out",
                  str(tmp_path / "e.csv")]) == 0
     assert read_events(tmp_path / "e.csv")
+    said = capsys.readouterr().err
+    assert "wheel comb: " in said and " m" in said, said
 
     bare = tmp_path / "bare.toml"
     bare.write_text("\n".join(line for line in layout.read_text().splitlines()

@@ -67,6 +67,9 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     info(f"{len(result.events)} events in {rec.duration_s / 60:.1f} min of recording, scanned in "
          f"{elapsed:.1f} s ({rec.duration_s / max(elapsed, 1e-9):.0f}x real time); wrote {out}"
          + (f" and {plot}" if plot else ""))
+    if rm.preparation.wheel_turns:
+        combed = ", ".join(f"{c} {t:.2f} m" for c, t in result.wheel_turns.items())
+        info(f"wheel comb: {combed or 'no channel with a clear wheel turn, none combed'}")
 
 
 def _truth_times(path: Path) -> list[float]:

@@ -3,8 +3,8 @@ events to CSV/JSON and a plot. The command line (``railwatch train --recordings`
 detect``) is a thin layer over these functions.
 
 A model trained on recordings carries ``recording.json`` beside its weights: the layout it was
-trained with and the preparation (rate, window, hops), so that ``detect`` prepares new recordings
-the same way without being told again.
+trained with and the preparation (rate, window, hops, the wheel comb), so that ``detect`` prepares
+new recordings the same way without being told again.
 """
 
 from __future__ import annotations
@@ -38,12 +38,13 @@ EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "thre
 
 
 # ----------------------------------------------------------------------------- training
-def prepared_chunks(recording: Recording, prep: Preparation,
-                    rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
+def prepared_chunks(recording: Recording, prep: Preparation, rows: int = CHUNK_ROWS,
+                    turns: list[float | None] | None = None) -> Iterator[Chunk]:
     """The recording's chunks as the detector is to see them before resampling: as read, or
-    with the wheel's turns combed out (``prep.wheel_turns``, :mod:`railwatch.recordings.wheel`)."""
+    with the wheel's turns combed out (``prep.wheel_turns``, :mod:`railwatch.recordings.wheel`;
+    ``turns`` found in the recording unless given)."""
     if prep.wheel_turns:
-        return wheel.combed(recording, prep.wheel_turns, rows)
+        return wheel.combed(recording, prep.wheel_turns, rows, turns)
     return recording.chunks(rows)
 
 
@@ -224,6 +225,7 @@ class Detection:
     threshold: float
     duration_s: float
     has_position: bool
+    wheel_turns: dict[str, float] = field(default_factory=dict)  # combed channel: turn, m
 
 
 def detect(model: Detector, recording: Recording, prep: Preparation,
@@ -240,14 +242,17 @@ def detect(model: Detector, recording: Recording, prep: Preparation,
                                on_samples=trace.add,
                                on_centres=None if profile is None else profile.add)
     events: list[Event] = []
-    for chunk in prepared_chunks(recording, prep, chunk_rows):
+    turns = wheel.recording_turns(recording, chunk_rows) if prep.wheel_turns else None
+    for chunk in prepared_chunks(recording, prep, chunk_rows, turns):
         events += stream.push(chunk)
         if progress:
             progress(len(chunk))
     events += stream.close()
     layout = recording.layout
     return Detection(events, trace.finish(), stream.threshold, recording.duration_s,
-                     bool(layout.position or layout.speed))
+                     bool(layout.position or layout.speed),
+                     {c: t for c, t in zip(layout.channels, turns or [], strict=False)
+                      if t is not None})
 
 
 # ----------------------------------------------------------------------------- outputs

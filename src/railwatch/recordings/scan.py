@@ -159,6 +159,7 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         "position_first_m": float(finite[0]) if len(finite) else None,
         "position_last_m": float(finite[-1]) if len(finite) else None,
         "profile": PROFILE_KIND,
+        "wheel_turns_m": result.wheel_turns,
     }
     arrays = {**profile.arrays(), "channels": np.array(lay.channels),
               "groups": np.array(lay.groups)}

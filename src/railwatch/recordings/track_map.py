@@ -394,7 +394,6 @@ def _consensus_frame(passes: list[PassEvents], transforms: list[tuple[float, flo
     return [(shift + slope * a, slope * b) for a, b in transforms]
 
 
-
 # ----------------------------------------------------------------------------- clustering
 def single_linkage(x: NDArray[np.float64], tolerance: float) -> NDArray[np.int64]:
     """Cluster labels of 1-D points: connected groups of the graph |xi − xj| <= tolerance

@@ -185,14 +185,27 @@ class Comb:
         return [chunk]
 
 
-def combed(recording: Recording, n_turns: int, rows: int = CHUNK_ROWS) -> Iterator[Chunk]:
-    """The chunks of ``recording`` with each channel's wheel turns combed out (module
-    docstring): a first read finds the turns, the second is combed."""
+def comb_chunks(chunks: Iterable[Chunk], turns: list[float | None], n_turns: int,
+                fs: float) -> Iterator[Chunk]:
+    """``chunks`` with each channel's ``turns`` combed out (:class:`Comb`)."""
+    comb = Comb(turns, n_turns, fs)
+    for chunk in chunks:
+        yield from comb.push(chunk)
+    yield from comb.close()
+
+
+def recording_turns(recording: Recording, rows: int = CHUNK_ROWS) -> list[float | None]:
+    """Each channel's wheel turn in ``recording`` (:func:`turns_of`, one read of the file)."""
     layout = recording.layout
     if not (layout.position or layout.speed):
         raise RailwatchError(NEEDS_TRAVEL)
-    turns = turns_of(recording.chunks(rows), layout.fs, len(layout.channels))
-    comb = Comb(turns, n_turns, layout.fs)
-    for chunk in recording.chunks(rows):
-        yield from comb.push(chunk)
-    yield from comb.close()
+    return turns_of(recording.chunks(rows), layout.fs, len(layout.channels))
+
+
+def combed(recording: Recording, n_turns: int, rows: int = CHUNK_ROWS,
+           turns: list[float | None] | None = None) -> Iterator[Chunk]:
+    """The chunks of ``recording`` with each channel's wheel turns combed out (module
+    docstring): ``turns`` as :func:`recording_turns` finds them (a first read) unless given."""
+    if turns is None:
+        turns = recording_turns(recording, rows)
+    return comb_chunks(recording.chunks(rows), turns, n_turns, recording.layout.fs)
