@@ -33,6 +33,7 @@ import re
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -326,16 +327,18 @@ def main() -> None:
 
 
 def _figure(results):  # type: ignore[no-untyped-def]
+    from matplotlib import colormaps
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(13, 3.8), layout="constrained")
     ax_r, ax_f = fig.subplots(1, 2)
-    colours: dict[tuple[str, str, str], str] = {}
+    colours: dict[tuple[str, str, str], Any] = {}
+    palette = colormaps["tab20"]  # up to 20 curves, none sharing a colour
     for (kind, det, odo, label), (_, _, rows) in results.items():
         if label not in ("chosen", "fused"):
             continue
         k = [r["passes"] for r in rows]
-        colour = colours.setdefault((kind, det, odo), f"C{len(colours)}")
+        colour = colours.setdefault((kind, det, odo), palette(len(colours) % 20))
         style = "-" if label == "fused" else ":"
         name = f"{det}, {kind}, {odo}" if label == "fused" else None
         ax_r.plot(k, [r["recall"] for r in rows], style, marker="o", color=colour, label=name)
