@@ -154,6 +154,10 @@ class Comb:
     def close(self) -> list[Chunk]:
         return self._send(len(self.x))
 
+    def _column(self, name: str, part: slice) -> NDArray[Any] | None:
+        value = self.columns.get(name)
+        return None if value is None else value[part]
+
     def _send(self, upto: int) -> list[Chunk]:
         if upto <= self.done:
             return []
@@ -170,9 +174,8 @@ class Comb:
                 total[ok] += np.interp(at[ok], self.x, self.data[:, c])
                 count += ok
             out[:, c] -= np.where(count > 0, total / np.maximum(count, 1), 0.0)
-        chunk = Chunk(self.sent, out.astype(np.float32),
-                      *(None if self.columns.get(n) is None else self.columns[n][part]
-                        for n in ("time", "speed", "position")))
+        time, speed, position = (self._column(n, part) for n in ("time", "speed", "position"))
+        chunk = Chunk(self.sent, out.astype(np.float32), time, speed, position)
         self.sent += upto - self.done
         self.done = upto
         # Keep the turns behind the first sample still to come (and one sample more).
