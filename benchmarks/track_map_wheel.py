@@ -23,9 +23,10 @@ Also measured: how often the estimate passes the gate and lands on L or a multip
 3 %), on the stage-8 tracks, and how often the gate passes on the stage-5 development track
 (no impulses: each pass should be left as it is).
 
-Run after `benchmarks/track_map.py` and `benchmarks/track_map_fusion.py` (which make the
-seed-12 and seed-13 tracks): `python benchmarks/track_map_wheel.py`, about 5 minutes on 2
-cores.
+Stage-8 tracks of seeds 12-19 (the development tracks of `benchmarks/track_map.py`,
+`track_map_fusion.py` and `track_map_frame.py`; made here if missing), the stage-5 one of seed
+12. Run after `benchmarks/track_map.py`: `python benchmarks/track_map_wheel.py`, about 15
+minutes on 2 cores.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).parent))
 import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
 
-ROLES = {"dev": 12, "dev2": 13}
+ROLES = {"dev": 12, **{f"dev{seed - 11}": seed for seed in range(13, 20)}}
 SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10), "3-12": slice(0, 10)}
 TURNS = 2
 
@@ -98,7 +99,7 @@ def combed_track(work: Path, kind: str, role: str, variant: str,
     return dst
 
 
-def curve(scan: Path, truth: Path) -> list[str]:
+def curve(scan: Path, truth: Path) -> list[tuple[float, float]]:
     from railwatch.recordings import track_map as tm
 
     passes = tm.read_scan(scan)
@@ -109,8 +110,20 @@ def curve(scan: Path, truth: Path) -> list[str]:
         lo, hi = tm.covered_range(use)
         s = tm.score_locations(tm.reported_fused(tm.fused_map(use)[0]),
                                tm.on_stretch(defects, lo, hi), hi - lo)
-        cells.append(f"{s['recall']:.0%} / {s['false_per_km']:.2f}")
+        cells.append((s["recall"], s["false_per_km"]))
     return cells
+
+
+def text(cells: list[tuple[float, float]]) -> str:
+    return " | ".join(f"{r:.0%} / {f:.2f}" for r, f in cells)
+
+
+def summary(per_track: list[list[tuple[float, float]]]) -> str:
+    """Mean recall / false per km of the 5-pass maps (lowest recall) | of the 10-pass maps."""
+    five = np.array([c for cells in per_track for c in cells[:2]])
+    ten = np.array([cells[2] for cells in per_track])
+    return (f"{five[:, 0].mean():.1%} / {five[:, 1].mean():.2f} ({five[:, 0].min():.0%}) | "
+            f"{ten[:, 0].mean():.1%} / {ten[:, 1].mean():.2f}")
 
 
 def main() -> None:
@@ -126,19 +139,24 @@ def main() -> None:
     rows = ["| nuisance | track (seed) | wheel turn L | " + " | ".join(
         f"passes {s}" for s in SUBSETS) + " |", "|---|---|---|" + "---|" * len(SUBSETS)]
     gate_rows = []
-    runs = [("stage 8", "dev"), ("stage 8", "dev2"), ("stage 5", "dev")]
+    runs = [*(("stage 8", role) for role in ROLES), ("stage 5", "dev")]
+    found: dict[str, list[list[tuple[float, float]]]] = {}
     for kind, role in runs:
         folder = bench.track(args.work, kind, role)
         plain = bench.above(bench.scanned(folder, "matched-filter", low), 1.0, low)
-        rows.append(f"| {kind} | {ROLES[role]} | none | "
-                    + " | ".join(curve(plain, folder / "track.defects.csv")) + " |")
+        cells = curve(plain, folder / "track.defects.csv")
+        rows.append(f"| {kind} | {ROLES[role]} | none | {text(cells)} |")
+        if kind == "stage 8":
+            found.setdefault("none", []).append(cells)
         for variant in ("true L", "estimated L") if kind == "stage 8" else ("estimated L",):
             stats: list[tuple[float, float, float]] = []
             combed = combed_track(args.work, kind, role, variant, stats)
             scan = bench.above(bench.scanned(combed, "matched-filter", low), 1.0, low)
-            rows.append(f"| {kind} | {ROLES[role]} | {variant} | "
-                        + " | ".join(curve(scan, folder / "track.defects.csv")) + " |")
+            cells = curve(scan, folder / "track.defects.csv")
+            rows.append(f"| {kind} | {ROLES[role]} | {variant} | {text(cells)} |")
             print(rows[-1], flush=True)
+            if kind == "stage 8":
+                found.setdefault(variant, []).append(cells)
             if variant == "estimated L":
                 s = np.array(stats)
                 passed = s[:, 1] >= wheel.GATE
@@ -155,6 +173,11 @@ def main() -> None:
              command, "", *items, "",
              "Recall within ±2 m / false places per km of the fused map (matched filter, "
              "odometry alone):", "", *rows, "",
+             f"Over the {len(ROLES)} stage-8 tracks: mean recall / false places per km of the "
+             f"{2 * len(ROLES)} maps from 5 passes (the lowest recall in brackets), and of the "
+             f"{len(ROLES)} maps from 10:", "",
+             "| wheel turn L | from 5 passes | from 10 passes |", "|---|---|---|",
+             *(f"| {variant} | {summary(cells)} |" for variant, cells in found.items()), "",
              "The estimate of L, per pass and channel (12 passes × 6 channels per track):", "",
              "| nuisance | track (seed) | channels | gate passed | of those on L or a multiple "
              "| on L or a multiple but below the gate |", "|---|---|---|---|---|---|",
