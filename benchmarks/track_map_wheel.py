@@ -169,7 +169,7 @@ def main() -> None:
                     + (f"{int((passed & on_l).sum())} | {int((~passed & on_l).sum())} |"
                        if kind == "stage 8" else "– (no impulses) | – |"))
     command, items = bench.page_head("track_map_wheel.py", __doc__)
-    lines = ["# Wheel-periodic impulses combed out before the detector (an experiment)", "",
+    lines = ["# Wheel-periodic impulses combed out before the detector (`train --wheel-comb`)", "",
              command, "", *items, "",
              "Recall within ±2 m / false places per km of the fused map (matched filter, "
              "odometry alone):", "", *rows, "",
