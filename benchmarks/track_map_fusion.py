@@ -10,9 +10,9 @@ false places per km of `track-map`'s default rule (0.1 false places per km by ch
 
 1. **first rules**: each pass ranked within its ±100 m neighbourhood (outside ±10 m), Fisher's
    combination, the alignment by events alone (the repairs of the alignment itself, pairs
-   compared with pairs, the chance gate and the median frame, are in every row, as are the
-   two passes a place needs, its position from every covering pass and `scan`'s central
-   score profile);
+   compared with pairs, the chance gate, the check of the moves by the profiles and the
+   frame from the passes' starts, are in every row, as are the two passes a place needs,
+   its position from every covering pass and `scan`'s central score profile);
 2. **+ ranked against the whole pass** after the local scaling by the neighbourhood's median
    and 90th percentile;
 3. **+ Stouffer's combination** instead of Fisher's;
