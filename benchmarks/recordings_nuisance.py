@@ -9,6 +9,8 @@ noise). Every trio counts, not the best one: the issue's target is >= 90 % of de
 thread) and its whole command is timed (start-up, reading, resampling, scoring, events).
 
 Run: `make bench-recordings-nuisance` (about 20 minutes on 2 cores for two detectors).
+`--detectors matched-filter,matched-filter-wheel` measures the matched filter without and with
+`train --wheel-comb` (about 5 minutes).
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
 TRIOS = ((1, 2, 3), (4, 5, 6), (7, 8, 9))  # train, train, detect
 MINUTES = 10
 TARGET_FOUND, TARGET_FALSE = 0.90, 0.2
+#: Labels that train a registry detector with `train` flags (as in benchmarks/track_map.py).
+TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 
 
 def run_file(work: Path, kind: str, seed: int) -> Path:
@@ -115,9 +119,11 @@ def main() -> None:
                 sets = [x for kv in args.set for x in ("--set", kv)]
                 fit_s = float("nan")
                 if not model.exists():
-                    fit_s, _ = railwatch("train", "--detector", det, "--recordings", str(a),
-                                         str(b), "--layout", str(a.with_suffix(".layout.toml")),
-                                         "--out", str(model), *sets)
+                    name, flags = TRAIN_FLAGS.get(det, (det, ()))
+                    fit_s, _ = railwatch("train", "--detector", name, *flags, "--recordings",
+                                         str(a), str(b), "--layout",
+                                         str(a.with_suffix(".layout.toml")), "--out",
+                                         str(model), *sets)
                 events_path = work / f"events-{model.name}-seed{trio[2]}.csv"
                 wall, _ = railwatch("detect", "--model", str(model), "--recording", str(c),
                                     "--out", str(events_path), one_core=True)
@@ -149,7 +155,9 @@ def main() -> None:
     sets = f" with `--set {' --set '.join(args.set)}`" if args.set else ""
     lines = [
         "# Recordings under the later stages' nuisance", "",
-        f"`make bench-recordings-nuisance` on {datetime.date.today()}: {cpu_name()}, "
+        (f"`python benchmarks/recordings_nuisance.py {' '.join(sys.argv[1:])}`"
+         if sys.argv[1:] else "`make bench-recordings-nuisance`")
+        + f" on {datetime.date.today()}: {cpu_name()}, "
         f"{len(os.sched_getaffinity(0))} cores (training); `detect` pinned to one core "
         "(`taskset -c 0`, one thread), whole command timed.", "",
         f"Each detector at default settings{sets}, trained with `railwatch train --recordings` on "
