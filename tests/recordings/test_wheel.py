@@ -110,3 +110,11 @@ def test_speed_alone_gives_the_distance() -> None:
     speed = np.full(10, 20.0)
     x = wheel.Travel(FS)(Chunk(0, np.zeros((10, 1), np.float32), speed=speed))
     np.testing.assert_allclose(x, np.arange(10) * 20.0 / FS)
+
+
+@pytest.mark.parametrize("turns", [-1, 6, 2.0])
+def test_wheel_turns_are_a_small_whole_number(turns: object) -> None:
+    from railwatch.recordings.prepare import Preparation
+
+    with pytest.raises(RailwatchError, match="whole number of turns"):
+        Preparation(wheel_turns=turns).check(2000.0)  # type: ignore[arg-type]

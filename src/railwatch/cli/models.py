@@ -112,7 +112,7 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     from railwatch.recordings.pipeline import fit_recording_model, training_windows
     from railwatch.recordings.prepare import Preparation
     from railwatch.recordings.readers import Recording
-    from railwatch.recordings.wheel import NEEDS_TRAVEL
+    from railwatch.recordings.wheel import check_layout
 
     if layout_file is None:
         raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
@@ -122,8 +122,8 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
                        detect_hop_s=min(Preparation.detect_hop_s, window_s),
                        wheel_turns=2 if wheel_comb else 0)
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
-    if wheel_comb and not (layout.position or layout.speed):
-        raise RailwatchError(NEEDS_TRAVEL)
+    if wheel_comb:
+        check_layout(layout)
     sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
     total = sum(r.duration_s for r in sources)
     with progress_seconds(total, "reading") as bar:

@@ -64,7 +64,7 @@ class Preparation:
         hop = self.samples(self.detect_hop_s, fs, "the detection hop")
         if window < 2:
             raise RailwatchError(f"a window of {self.window_s:g} s is under two samples")
-        if self.wheel_turns not in range(0, 6):
+        if not isinstance(self.wheel_turns, int) or not 0 <= self.wheel_turns <= 5:
             raise RailwatchError(f"wheel_turns is {self.wheel_turns!r}: a whole number of turns "
                                  "from 0 (no comb) to 5")
         if hop > window:

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.errors import RailwatchError
+from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import CHUNK_ROWS, Chunk, Recording
 
 #: Distance grid of the cepstrum (m), its blocks (m), the range of wheel turns searched (m; a
@@ -197,11 +198,17 @@ def comb_chunks(chunks: Iterable[Chunk], turns: list[float | None], n_turns: int
     yield from comb.close()
 
 
+def check_layout(layout: Layout) -> None:
+    """A one-line error unless ``layout`` names a position or speed column (the comb needs the
+    distance travelled)."""
+    if not (layout.position or layout.speed):
+        raise RailwatchError(NEEDS_TRAVEL)
+
+
 def recording_turns(recording: Recording, rows: int = CHUNK_ROWS) -> list[float | None]:
     """Each channel's wheel turn in ``recording`` (:func:`turns_of`, one read of the file)."""
     layout = recording.layout
-    if not (layout.position or layout.speed):
-        raise RailwatchError(NEEDS_TRAVEL)
+    check_layout(layout)
     return turns_of(recording.chunks(rows), layout.fs, len(layout.channels))
 
 
