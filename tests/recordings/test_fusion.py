@@ -254,3 +254,79 @@ def test_one_pass_confirms_nothing_in_a_group_the_others_lack() -> None:
     fused = fusion.fuse(xs, two, rounds=5)
     assert (fused.by_kind[1] == 0).all()
     assert (fused.covered[(fused.grid > 10) & (fused.grid < LENGTH - 10)] == 2).all()
+
+
+def test_on_rails_mirrors_each_group_and_fills_missing_channels() -> None:
+    score = np.array([[1.0, 2.0, 3.0]], dtype=np.float32)
+    pr = tm.ScoreProfile(position=np.zeros(1), channel_score=score,
+                         channels=("axle_1", "axle_2", "body_1"), groups=("axle", "axle", "body"))
+    wanted = ("axle_1", "axle_2", "body_1", "bogie_1")
+    assert pr.on_rails(wanted, mirrored=False)[0, :3].tolist() == [1.0, 2.0, 3.0]
+    mirrored = pr.on_rails(wanted, mirrored=True)[0]
+    assert mirrored[:3].tolist() == [2.0, 1.0, 3.0] and np.isnan(mirrored[3])
+
+
+def sided_scan_folder(folder: Path, world: str, n: int = 6, seed: int = 7) -> np.ndarray:
+    """A scan folder of ``n`` passes, every other one down the track, over defects each felt on
+    one rail: by channel axle_1 or axle_2 of a pass up the track, and of a pass down by the
+    same channel (``world`` "keep": push-pull) or the other one ("swap": a turned vehicle).
+    The defects' positions."""
+    rng = np.random.default_rng(seed)
+    defects = np.sort(rng.choice(np.arange(150.0, LENGTH - 150, 100.0), 16, replace=False))
+    rail = rng.integers(0, 2, len(defects))
+    for i in range(n):
+        up = i % 2 == 0
+        x = np.arange(0, LENGTH, 0.25) + rng.uniform(0, 0.25)
+        s = rng.exponential(size=(len(x), 2))
+        for d, r in zip(defects, rail, strict=True):
+            near = np.abs(x - d - rng.normal(0, 0.3)) <= 0.4
+            channel = r if up or world == "keep" else 1 - r
+            s[near, channel] += 2.0 * rng.exponential(size=near.sum()) + 2.0
+        if not up:  # recorded in time order: down the track
+            x, s = x[::-1], s[::-1]
+        name = f"pass{i:02d}"
+        (folder / f"{name}.scan.json").write_text(json.dumps(
+            {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
+             "profile": tm.PROFILE_KIND}))
+        rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
+        for d in defects:
+            j = int(np.argmin(np.abs(x - d)))
+            rows.append(f"1.0,1.1,1.05,axle_1,axle,{s[j].max():.3f},3.0,{x[j]:.3f}")
+        (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
+        np.savez(folder / f"{name}.profile.npz", time_s=np.arange(len(x)) / 100.0,
+                 position_m=x, channel_score=s.astype(np.float32),
+                 channels=np.array(["axle_1", "axle_2"]), groups=np.array(["axle", "axle"]))
+    return defects
+
+
+@pytest.mark.parametrize("world", ["swap", "keep"])
+def test_auto_sides_follow_the_vehicle(tmp_path: Path, world: str) -> None:
+    """Each defect on one rail: summed per channel under the vehicle's own rule it stands out on
+    every pass; under the other rule on half of them; auto finds the rule from the passes."""
+    defects = sided_scan_folder(tmp_path, world)
+    passes = tm.read_scan(tmp_path)
+    recall = {}
+    for sides in ("auto", "swap", "keep", "group"):
+        locations, fused = tm.fused_map(passes, sides=sides)
+        assert fused.sides == (world if sides == "auto" else sides)
+        s = tm.score_locations(tm.reported_fused(locations), defects, LENGTH)
+        recall[sides] = s["recall"]
+    wrong = "keep" if world == "swap" else "swap"
+    assert recall["auto"] == recall[world] >= 0.9 > recall[wrong] + 0.2, recall
+    assert recall[world] >= recall["group"], recall
+
+
+def test_track_map_names_its_sides_rule(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from railwatch.cli import main
+    from railwatch.cli.tracks import SIDES_CHOICES
+
+    assert SIDES_CHOICES == tm.SIDES  # the CLI's copy (it loads the recordings lazily)
+    sided_scan_folder(tmp_path, "keep")
+    for sides, said in (("auto", "sides: keep (auto)"), ("group", "sides: group)")):
+        code = main(["track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv"),
+                     "--sides", sides])
+        err = capsys.readouterr().err
+        assert code == 0 and said in err, err
+    code = main(["track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv"),
+                 "--sides", "left"])
+    assert code != 0 and "left" in capsys.readouterr().err

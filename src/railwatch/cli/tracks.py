@@ -14,6 +14,8 @@ from railwatch.errors import RailwatchError
 #: How track-map ranks places: fused_map (evidence from every pass's scores) or track_map (the
 #: share of passes with an event), both in recordings.track_map.
 METHOD_CHOICES = ("fused", "votes")
+#: recordings.track_map.SIDES (not imported here: the CLI loads the recordings lazily).
+SIDES_CHOICES = ("auto", "swap", "keep", "group")
 
 
 def expand_recordings(items: tuple[str, ...]) -> list[Path]:
@@ -126,6 +128,12 @@ from the events' duration), first_seen, last_seen (recording names).
               help="Largest offset between two passes' positions (track positions: no pass "
                    "is turned round); 0: any (positions counted from each pass's start, "
                    "either way along the track).")
+@click.option("--sides", type=click.Choice(SIDES_CHOICES), default="auto", show_default=True,
+              help="fused: how each pass's channels are laid on the rails. swap: a vehicle "
+                   "turned at the line's ends (a sensor group's channels, its sides, swap rails "
+                   "with the direction); keep: push-pull (they stay); group: each group's "
+                   "highest channel (either); auto: swap or keep, the one under which the "
+                   "passes agree most.")
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
               help="votes: report a place seen on at least this share of the passes that "
                    "covered it, and on 2 passes at least (one pass confirms nothing).")
@@ -134,7 +142,7 @@ from the events' duration), first_seen, last_seen (recording names).
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
                    "false locations per km.")
 def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
-              tolerance_m: float, max_offset_m: float, min_share: float,
+              tolerance_m: float, max_offset_m: float, sides: str, min_share: float,
               truth: Path | None) -> None:
     """Turn repeated passes over one line into ranked places on the track.
 
@@ -159,9 +167,11 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     truth_m = tm.read_truth(truth) if truth else None
     fused = None
     if method == "fused":
-        locations, fused = tm.fused_map(passes, tolerance_m, max_offset_m or None)
+        locations, fused = tm.fused_map(passes, tolerance_m, max_offset_m or None,
+                                        sides=sides)
         reported = tm.reported_fused(locations, false_per_km)
-        rule = f"at most {false_per_km:g} such places per km by chance"
+        rule = (f"at most {false_per_km:g} such places per km by chance; sides: "
+                f"{fused.sides}" + (" (auto)" if sides == "auto" else ""))
     else:
         locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
         reported = tm.reported(locations, min_share, len(passes))

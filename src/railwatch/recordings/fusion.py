@@ -83,6 +83,8 @@ class Fused:
     null_levels: NDArray[np.float64]  # evidence levels at which the null was counted
     null_counts: NDArray[np.float64]  # stretches above each level, over all shifted rounds
     null_km: float  # km of track × rounds behind null_counts
+    kinds: tuple[str, ...] = ()  # names of by_kind's rows (sensor groups or channels)
+    sides: str = ""  # how the track map laid the passes' channels on them (track_map.SIDES)
 
     def false_per_km(self, evidence: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Expected places per km at least this strong among passes without a repeating
@@ -221,10 +223,10 @@ def count_runs(evidence: NDArray[np.float64], levels: NDArray[np.float64],
 def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
          tolerance_m: float = 2.0, step_m: float = STEP_M, slack_m: float = SLACK_M,
          window_m: float = WINDOW_M, rounds: int = ROUNDS,
-         seed: int = 0) -> Fused:
+         seed: int = 0, names: tuple[str, ...] = ()) -> Fused:
     """The fused evidence of passes whose per-sample scores ``scores[i]`` ((n,) or (n, K): K
-    kinds of evidence, such as sensor groups, each fused on its own and the strongest taken)
-    lie at map positions ``xs[i]`` (module docstring)."""
+    kinds of evidence, such as sensor groups, each fused on its own and the strongest taken;
+    ``names`` names them) lie at map positions ``xs[i]`` (module docstring)."""
     finite = [x[np.isfinite(x)] for x in xs]
     lo = min((float(f.min()) for f in finite if len(f)), default=0.0)
     hi = max((float(f.max()) for f in finite if len(f)), default=0.0)
@@ -271,7 +273,7 @@ def fuse(xs: list[NDArray[np.float64]], scores: list[NDArray[np.float64]],
         strongest = np.fmax.reduce(calibrated, axis=0)  # NaN only where no kind covered
     return Fused(grid=grid, evidence=kind_evidence.max(axis=0), covered=covered,
                  by_kind=kind_evidence, calibrated=strongest,
-                 null_levels=NULL_LEVELS, null_counts=counts, null_km=km)
+                 null_levels=NULL_LEVELS, null_counts=counts, null_km=km, kinds=names)
 
 
 def _normal_scores(calibrated: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -59,6 +59,14 @@ MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_k
 #: development track (stage 5, loud stretches) spikes' events last 0.15 / 0.35 / 0.39 s
 #: (quartiles), local deviations' 0.42 / 0.47 / 0.55 s; this cut guesses about 3 in 4 right.
 SPIKE_LIKE_S = 0.4
+#: How a pass's channels are laid on the track before their evidence is summed over the passes
+#: (``track-map --sides``): ``swap`` (a vehicle whose sides swap rails when it runs the other
+#: way: turned at the line's ends), ``keep`` (a vehicle whose sides stay on their rails:
+#: push-pull), ``group`` (each sensor group's highest channel: either), ``auto`` (``swap`` or
+#: ``keep``, the one under which the passes agree most: the most places stronger than chance
+#: gives :data:`CHOICE_PER_KM` times per km; docs/track-map.md, "The sides of the vehicle").
+SIDES = ("auto", "swap", "keep", "group")
+CHOICE_PER_KM = 0.1
 MAX_SCALE_ERROR = 0.005  # |b| within 1 ± 0.5 %: odometry scale errors are a few per mille
 #: A pass is moved only when at least this many of its events (and two more than as recorded)
 #: repeat on the reference after the move.
@@ -76,10 +84,27 @@ class ScoreProfile:
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
-        is felt on swaps with the direction of travel; its group does not)."""
+        is felt on swaps with the direction of travel on some vehicles; its group does not)."""
         g = np.asarray(self.groups)
         return np.stack([self.channel_score[:, g == name].max(axis=1) if (g == name).any()
                          else np.full(len(self.position), np.nan) for name in groups], axis=1)
+
+    def on_rails(self, channels: tuple[str, ...], mirrored: bool) -> NDArray[np.float64]:
+        """(n, len(channels)): column j the score of the channel that was over channel j's
+        rail: channel j itself or, ``mirrored`` (a pass the other way on a vehicle whose sides
+        swap with its direction), the channel at the mirror place of j's sensor group (the
+        group's channels in reverse order: a group's channels are its sides). NaN for a
+        channel this recording lacks."""
+        own = {name: i for i, name in enumerate(self.channels)}
+        source = np.arange(len(self.channels))
+        if mirrored:
+            g = np.asarray(self.groups)
+            for name in dict.fromkeys(self.groups):
+                idx = np.flatnonzero(g == name)
+                source[idx] = idx[::-1]
+        nan = np.full(len(self.position), np.nan)
+        return np.stack([self.channel_score[:, source[own[c]]].astype(np.float64)
+                         if c in own else nan for c in channels], axis=1)
 
 
 @dataclass
@@ -464,15 +489,48 @@ def track_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     return [Location(rank=i + 1, **r) for i, r in enumerate(found)]
 
 
+def runs_up(x: NDArray[np.float64]) -> bool:
+    """Whether a pass at map positions ``x`` (in time order) ran up the map."""
+    finite = x[np.isfinite(x)]
+    return not len(finite) or bool(finite[-1] >= finite[0])
+
+
+def rail_scores(profiles: list[ScoreProfile], xs: list[NDArray[np.float64]], sides: str,
+                ) -> tuple[tuple[str, ...], tuple[str, ...], list[NDArray[np.float64]]]:
+    """What the fused map sums over the passes, by the rule ``sides`` (:data:`SIDES`): the
+    names of its kinds of evidence, each kind's sensor group, and per pass its scores (n,
+    kinds). ``group``: each sensor group's highest channel; ``keep``: each channel as
+    recorded; ``swap``: each channel, a pass down the map (``xs``) with its groups mirrored
+    (:meth:`ScoreProfile.on_rails`)."""
+    if sides == "group":
+        groups = tuple(dict.fromkeys(g for pr in profiles for g in pr.groups))
+        return groups, groups, [pr.by_group(groups) for pr in profiles]
+    group_of = {c: g for pr in profiles for c, g in zip(pr.channels, pr.groups, strict=True)}
+    channels = tuple(group_of)
+    return channels, tuple(group_of[c] for c in channels), [
+        pr.on_rails(channels, mirrored=sides == "swap" and not runs_up(x))
+        for pr, x in zip(profiles, xs, strict=True)]
+
+
+def _agreement(fused: fusion.Fused, gap: int) -> tuple[int, float]:
+    """How much the passes agree under one rule of :data:`SIDES`: the places stronger than
+    chance gives :data:`CHOICE_PER_KM` times per km, and their summed evidence."""
+    runs = fusion.runs_above(fused.evidence, fused.level(CHOICE_PER_KM), gap)
+    return len(runs), float(sum(fused.evidence[r].max() for r in runs))
+
+
 def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
-              search_m: float | None = 50.0, list_per_km: float = 1.0,
+              search_m: float | None = 50.0, list_per_km: float = 1.0, sides: str = "auto",
               ) -> tuple[list[Location], fusion.Fused]:
     """The places where the evidence fused from every pass's scores (:mod:`fusion`: per pass
-    measured against its own neighbourhood and ranked within the pass, per sensor group summed
-    over the passes) is higher than passes shifted at random reach ``list_per_km`` times per
-    km; most evident first. The passes are aligned by their events (:func:`align`)."""
+    measured against its own neighbourhood and ranked within the pass, per kind of evidence
+    summed over the passes) is higher than passes shifted at random reach ``list_per_km``
+    times per km; most evident first. The passes are aligned by their events (:func:`align`);
+    ``sides`` (:data:`SIDES`) says how their channels are laid on the rails."""
     if tolerance_m <= 0:
         raise RailwatchError(f"--tolerance-m must be positive, got {tolerance_m:g}")
+    if sides not in SIDES:
+        raise RailwatchError(f"--sides must be one of {', '.join(SIDES)}, got {sides!r}")
     lacking = [p.name for p in passes if p.profile is None]
     if lacking:
         raise RailwatchError(f"{lacking[0]} was scanned without a current score profile (a "
@@ -487,9 +545,17 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
         transforms = verify_moves(passes, transforms, per_group)
     transforms = refine_by_profiles(passes, transforms, per_group)
     xs = [a + b * pr.position for pr, (a, b) in zip(profiles, transforms, strict=True)]
-    fused = fusion.fuse(xs, per_group, tolerance_m)
-    point = [np.nanmax(pg, axis=1) for pg in per_group]
     gap = max(1, int(round(tolerance_m / fusion.STEP_M)))
+    rules = [sides] if sides != "auto" else \
+        ["swap", "keep"] if len({runs_up(x) for x in xs}) > 1 else ["keep"]
+    candidates = []
+    for rule in rules:
+        names, kind_groups, scores = rail_scores(profiles, xs, rule)
+        candidates.append((fusion.fuse(xs, scores, tolerance_m, names=names), rule,
+                           kind_groups))
+    fused, rule, kind_groups = max(candidates, key=lambda c: _agreement(c[0], gap))
+    fused.sides = rule
+    point = [np.nanmax(pg, axis=1) for pg in per_group]
     events_at = [a + b * p.position for p, (a, b) in zip(passes, transforms, strict=True)]
     found: list[dict[str, Any]] = []
     for run in fusion.runs_above(fused.evidence, fused.level(list_per_km), gap):
@@ -504,7 +570,7 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
         durations = [d for i in seen_by for x, d in zip(events_at[i], passes[i].duration_s,
                                                         strict=True)
                      if lo - tolerance_m <= x <= hi + tolerance_m]
-        group = groups[int(np.argmax(fused.by_kind[:, peak]))]
+        group = kind_groups[int(np.argmax(fused.by_kind[:, peak]))]
         channels = [_channel_at(profiles[i], xs[i], lo, hi, group) for i in seen_by]
         covered = len(covering)
         found.append(dict(
