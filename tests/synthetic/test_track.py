@@ -33,11 +33,11 @@ def test_a_track_is_fixed_by_its_seed() -> None:
         make_track(500, 40)
 
 
-@pytest.mark.parametrize("direction", [1, -1])
-def test_a_pass_feels_every_defect_where_it_is(direction: int) -> None:
+@pytest.mark.parametrize(("direction", "push_pull"), [(1, False), (-1, False), (-1, True)])
+def test_a_pass_feels_every_defect_where_it_is(direction: int, push_pull: bool) -> None:
     track = make_track(2000, 8, seed=1)
     p = synthesize_pass(track, seed=3, fs=500.0, direction=direction,
-                        odometry=Odometry(0.0, 0.0, 0.0))
+                        odometry=Odometry(0.0, 0.0, 0.0), push_pull=push_pull)
     lo, hi = sorted((p.true_position[0], p.true_position[-1]))
     inside = [d for d in track.defects if lo <= d.position_m <= hi]
     assert {c["defect"] for c in p.crossings} == {d.defect for d in inside}
@@ -47,8 +47,10 @@ def test_a_pass_feels_every_defect_where_it_is(direction: int) -> None:
         d = track.defects[c["defect"]]
         at = np.interp(c["time_s"], p.run.time, p.true_position)
         assert abs(at - d.position_m) < 0.1 or abs(at - d.position_m - d.length_m) < 0.1
-        side = d.side if direction == 1 else 3 - d.side
+        side = d.side if direction == 1 or push_pull else 3 - d.side  # a turned vehicle
         assert c["channel"] == f"{d.group}_{side}"
+        if direction == -1 and not push_pull:  # the same defect, felt on the other channel
+            assert c["channel"] != f"{d.group}_{d.side}"
         np.testing.assert_allclose(c["recorded_m"], np.interp(c["center_s"], p.run.time,
                                                               p.true_position), atol=0.2)
 

@@ -119,6 +119,10 @@ def figure_stages(out: Path, seed: int) -> None:
 @click.option("--odometry-relative", is_flag=True,
               help="With --passes: positions counted from each pass's start (an odometer "
                    "alone), not the track's.")
+@click.option("--push-pull", is_flag=True,
+              help="With --passes: the vehicle runs back without turning, so each side stays "
+                   "on its rail (default: turned at the ends, a defect is felt on the other "
+                   "side on the way back).")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks); with "
                    "--passes a folder.")
@@ -126,7 +130,7 @@ def figure_stages(out: Path, seed: int) -> None:
 def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float, stage: int,
                  loud_stretches: bool, passes: int | None, track_km: float, track_defects: int,
                  fmt: str, odometry_offset: float, odometry_drift: float, odometry_walk: float,
-                 odometry_relative: bool, out: Path) -> None:
+                 odometry_relative: bool, push_pull: bool, out: Path) -> None:
     """Synthesise a long six-channel field-rate run with defects at known times and positions,
     or repeated passes over one track.
 
@@ -137,7 +141,8 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
     --stage 7 and 8 add the later stages' nuisance, tied to the track and the wheels;
     --loud-stretches makes the noise level of whole sections of track change.
     With --passes N: one track with defects at fixed positions and N passes over it (each its
-    own speed, noise, nuisance, start offset and odometry error; odd passes backwards), in
+    own speed, noise, nuisance, start offset and odometry error; odd passes backwards, the
+    vehicle turned round unless --push-pull), in
     OUT/: track.defects.csv (defects by position), layout.toml, passNN.<format> and
     passNN.defects.csv (when each pass crossed each defect).
     Examples:
@@ -158,7 +163,7 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
                 stage=stage, fs=fs, loud_stretches=loud_stretches,
                 odometry=Odometry(odometry_offset, odometry_drift, odometry_walk,
                                   odometry_relative),
-                suffix=f".{fmt}", progress=bar.update)
+                suffix=f".{fmt}", push_pull=push_pull, progress=bar.update)
         info(f"wrote {passes} passes over {track_km:g} km with {len(track.defects)} defects "
              f"into {out} in {time.perf_counter() - started:.0f} s ({paths[0].name} ...)")
         return

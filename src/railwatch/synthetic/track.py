@@ -11,9 +11,11 @@ A **pass** is one run over the track (the signals of :mod:`railwatch.synthetic.r
 speed profile, noise, HF bursts and impulses), entering at its own start offset, in either
 direction; a defect is felt when the vehicle is over it, for as long as the vehicle takes to
 cross it, on the side of the vehicle that is over its rail (the sides swap when the vehicle runs
-the other way). The recorded ``position`` column is the odometry's, not the truth: the true
-position where the pass starts plus an offset error, a scale error (drift: the wheel's radius
-is not known exactly) and a random walk, as a vehicle's odometry or GPS drifts by metres.
+the other way, as on a vehicle turned at the line's ends; with ``push_pull`` they stay, as on a
+vehicle that runs back without turning). The recorded ``position`` column is the odometry's,
+not the truth: the true position where the pass starts plus an offset error, a scale error
+(drift: the wheel's radius is not known exactly) and a random walk, as a vehicle's odometry or
+GPS drifts by metres.
 """
 
 from __future__ import annotations
@@ -151,9 +153,11 @@ class Pass:
 
 
 def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int = 1,
-                    start_m: float | None = None, odometry: Odometry | None = None) -> Pass:
+                    start_m: float | None = None, odometry: Odometry | None = None,
+                    push_pull: bool = False) -> Pass:
     """One pass over ``track`` (module docstring): it enters at ``start_m`` from its end
-    (default U[0, 200] m) and runs to within 200 m of the other end."""
+    (default U[0, 200] m) and runs to within 200 m of the other end; backwards (``direction``
+    −1) a defect is felt on the other side of the vehicle unless ``push_pull``."""
     if direction not in (1, -1):
         raise RailwatchError(f"direction is 1 or -1, got {direction}")
     odometry = odometry or Odometry()
@@ -183,7 +187,7 @@ def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int 
         if d.kind == "spike":
             i1 = i0 + max(1, int(round(0.01 * fs)))
         i1 = min(max(i1, i0 + 1), n)
-        side = d.side if direction == 1 else 3 - d.side
+        side = d.side if direction == 1 or push_pull else 3 - d.side
         c = CHANNELS.index(f"{d.group}_{side}")
         data[i0:i1, c] += d.offset
         crossings.append({"defect": d.defect, "time_s": round(float(t[i0]), 6),
@@ -204,12 +208,13 @@ def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int 
 def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_000.0,
                 n_defects: int = 40, seed: int = 0, stage: int = 5, fs: float = 2000.0,
                 loud_stretches: bool = False, odometry: Odometry | None = None,
-                suffix: str = ".parquet",
+                suffix: str = ".parquet", push_pull: bool = False,
                 progress: Any = None) -> tuple[Track, list[Path]]:
     """A track and ``passes`` passes over it, written into the folder ``out``: ``track.defects.csv``
     (true defects by position), ``layout.toml`` (every pass's columns), and per pass
     ``passNN<suffix>`` (the recording) and ``passNN.defects.csv`` (when and where it crossed each
-    defect). Pass ``i`` runs forwards when ``i`` is even, backwards when odd; each has its own
+    defect). Pass ``i`` runs forwards when ``i`` is even, backwards when odd (a vehicle turned
+    at the ends, or with ``push_pull`` one that runs back without turning); each has its own
     seed, start offset and odometry error. ``track.defects.csv`` is written last, so a folder
     that has it holds every pass. Returns the track and the recordings' paths."""
     from railwatch.recordings.layout import layout_toml
@@ -229,7 +234,8 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
     paths = []
     for i in range(passes):
         p = synthesize_pass(track, seed=seed * 1000 + i + 1, fs=fs,
-                            direction=1 if i % 2 == 0 else -1, odometry=odometry)
+                            direction=1 if i % 2 == 0 else -1, odometry=odometry,
+                            push_pull=push_pull)
         name = f"pass{i + 1:02d}"
         p.write_truth(out / f"{name}.defects.csv")
         paths.append(write_recording(out / f"{name}{suffix}", p.run.columns()))
