@@ -21,8 +21,9 @@ evidence over the passes; the kinds by each rule of `--sides`:
    rails; here half of the passes put a defect on the other channel);
 3. **swap**: each channel, a pass down the map with each sensor group's channels in reverse
    order (right for a turned vehicle: the synthesiser's world);
-4. **auto** (`track-map`'s default): keep or swap, the one with more places stronger than
-   chance gives 0.1 times per km; the last column says how often it chose swap.
+4. **auto** (`track-map`'s default): keep or swap, the one with the more evidence summed over
+   its places stronger than chance gives 0.1 times per km; the last column says on how many
+   of the placement's 24 maps (16 from 5 passes, 8 from 10) it chose swap.
 
 The rows "push-pull" are tracks made like the others with `generate-run --push-pull` (the
 vehicle runs back without turning, so a defect is felt on the same channel both ways: `keep`
@@ -31,7 +32,7 @@ here. Each map's result is kept in `WORK/track-map-sides.json`: a second run mea
 what is missing.
 
 Run after `benchmarks/track_map_frame.py` and `benchmarks/track_map_wheel.py` (which make and
-scan the tracks): `make bench-track-map-sides`, about 45 minutes on 2 cores.
+scan the tracks): `make bench-track-map-sides`, about 50 minutes on 2 cores.
 """
 
 from __future__ import annotations
