@@ -266,11 +266,12 @@ def test_on_rails_mirrors_each_group_and_fills_missing_channels() -> None:
     assert mirrored[:3].tolist() == [2.0, 1.0, 3.0] and np.isnan(mirrored[3])
 
 
-def sided_scan_folder(folder: Path, world: str, n: int = 6, seed: int = 7) -> np.ndarray:
+def sided_scan_folder(folder: Path, world: str, n: int = 6, seed: int = 7,
+                      ) -> tuple[np.ndarray, np.ndarray]:
     """A scan folder of ``n`` passes, every other one down the track, over defects each felt on
     one rail: by channel axle_1 or axle_2 of a pass up the track, and of a pass down by the
     same channel (``world`` "keep": push-pull) or the other one ("swap": a turned vehicle).
-    The defects' positions."""
+    The defects' positions and rails (0: axle_1 up the track, 1: axle_2)."""
     rng = np.random.default_rng(seed)
     defects = np.sort(rng.choice(np.arange(150.0, LENGTH - 150, 100.0), 16, replace=False))
     rail = rng.integers(0, 2, len(defects))
@@ -296,14 +297,14 @@ def sided_scan_folder(folder: Path, world: str, n: int = 6, seed: int = 7) -> np
         np.savez(folder / f"{name}.profile.npz", time_s=np.arange(len(x)) / 100.0,
                  position_m=x, channel_score=s.astype(np.float32),
                  channels=np.array(["axle_1", "axle_2"]), groups=np.array(["axle", "axle"]))
-    return defects
+    return defects, rail
 
 
 @pytest.mark.parametrize("world", ["swap", "keep"])
 def test_auto_sides_follow_the_vehicle(tmp_path: Path, world: str) -> None:
     """Each defect on one rail: summed per channel under the vehicle's own rule it stands out on
     every pass; under the other rule on half of them; auto finds the rule from the passes."""
-    defects = sided_scan_folder(tmp_path, world)
+    defects, rail = sided_scan_folder(tmp_path, world)
     passes = tm.read_scan(tmp_path)
     recall = {}
     for sides in ("auto", "swap", "keep", "group"):
@@ -311,6 +312,11 @@ def test_auto_sides_follow_the_vehicle(tmp_path: Path, world: str) -> None:
         assert fused.sides == (world if sides == "auto" else sides)
         s = tm.score_locations(tm.reported_fused(locations), defects, LENGTH)
         recall[sides] = s["recall"]
+        if sides == "auto":  # each place names its rail: the channel of a pass up the map
+            rails = {float(d): f"axle_{r + 1}" for d, r in zip(defects, rail, strict=True)}
+            named = [(rails[d], loc.channel) for loc in tm.reported_fused(locations)
+                     for d in defects if abs(loc.position_m - d) <= 2.0]
+            assert len(named) >= 14 and all(a == b for a, b in named), named
     wrong = "keep" if world == "swap" else "swap"
     assert recall["auto"] == recall[world] >= 0.9 > recall[wrong] + 0.2, recall
     assert recall[world] >= recall["group"], recall

@@ -516,8 +516,8 @@ def rail_scores(profiles: list[ScoreProfile], xs: list[NDArray[np.float64]], sid
 def _agreement(fused: fusion.Fused, gap: int) -> float:
     """How much the passes agree under one rule of :data:`SIDES`: the summed evidence of the
     places stronger than chance gives :data:`CHOICE_PER_KM` times per km (under the wrong
-    rule a defect gets the evidence of half of the passes that ran the other way; counting
-    the places instead chose the wrong rule on 1 of the 144 development maps of
+    rule a defect has the evidence of only the passes that ran its way; counting the places
+    instead chose the wrong rule on 1 of the 144 development maps of
     benchmarks/track_map_sides.py, a 10-pass map on which both found nearly every defect)."""
     runs = fusion.runs_above(fused.evidence, fused.level(CHOICE_PER_KM), gap)
     return float(sum(fused.evidence[r].max() for r in runs))
@@ -574,8 +574,12 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
         durations = [d for i in seen_by for x, d in zip(events_at[i], passes[i].duration_s,
                                                         strict=True)
                      if lo - tolerance_m <= x <= hi + tolerance_m]
-        group = kind_groups[int(np.argmax(fused.by_kind[:, peak]))]
-        channels = [_channel_at(profiles[i], xs[i], lo, hi, group) for i in seen_by]
+        kind = int(np.argmax(fused.by_kind[:, peak]))
+        group = kind_groups[kind]
+        # The rail, named by the channel over it on a pass up the map; by the groups'
+        # maximum, the channel most of the passes that saw the place had highest there.
+        channels = [_channel_at(profiles[i], xs[i], lo, hi, group) for i in seen_by] \
+            if rule == "group" else [fused.kinds[kind]]
         covered = len(covering)
         found.append(dict(
             position_m=at, start_m=float(lo), end_m=float(hi),
