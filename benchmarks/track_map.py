@@ -51,6 +51,9 @@ RUNS = (("stage 5", "context-glr"), ("stage 5", "aft-attention"), ("stage 8", "c
 TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 ODOMETRIES = {"odometry alone": None, "GNSS-aided": (1.0, 0.0001, 0.1)}
 SEEDS = {"test": 11, "dev": 12}
+#: The eight development tracks of the track-map benchmarks that measure on several (seeds
+#: 12-19; the test track, seed 11, is never among them): role name -> seed.
+DEV_ROLES = {"dev": 12, **{f"dev{seed - 11}": seed for seed in range(13, 20)}}
 PASSES, TRAIN = 12, 2
 COUNTS = (1, 2, 5, 10)
 SHARES = (0.2, 0.3, 0.4, 0.5, 0.6)

@@ -47,7 +47,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
 
-ROLES = {"dev": 12, **{f"dev{seed - 11}": seed for seed in range(13, 20)}}
+ROLES = bench.DEV_ROLES
 SUBSETS = {"5": (slice(0, 5), slice(5, 10)), "10": (slice(0, 10),)}
 PLACEMENTS = {"odometry alone": None, "GNSS-aided": bench.ODOMETRIES["GNSS-aided"]}
 RULES = ("group", "keep", "swap", "auto")

@@ -42,7 +42,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).parent))
 import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
 
-ROLES = {"dev": 12, **{f"dev{seed - 11}": seed for seed in range(13, 20)}}
+ROLES = bench.DEV_ROLES
 SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10), "3-12": slice(0, 10)}
 TURNS = 2
 

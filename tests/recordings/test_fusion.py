@@ -140,25 +140,32 @@ def test_seen_on_9_of_10_is_more_evident_than_1_of_10() -> None:
     assert e9 > e1 and fused.false_per_km(e9)[0] < fused.false_per_km(e1)[0]
 
 
+def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
+               channel_score: np.ndarray, channels: tuple[str, ...], groups: tuple[str, ...],
+               defects: np.ndarray) -> None:
+    """One recording of a scan folder as ``railwatch scan`` writes it: its stretch, an event
+    at each defect (the highest channel's score there), its score profile."""
+    (folder / f"{name}.scan.json").write_text(json.dumps(
+        {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
+         "profile": tm.PROFILE_KIND}))
+    rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
+    for d in defects:
+        j = int(np.argmin(np.abs(x - d)))
+        rows.append(f"1.0,1.1,1.05,axle_1,axle,{channel_score[j].max():.3f},3.0,{x[j]:.3f}")
+    (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
+    np.savez(folder / f"{name}.profile.npz", time_s=time_s, position_m=x,
+             channel_score=channel_score.astype(np.float32), channels=np.array(channels),
+             groups=np.array(groups))
+
+
 def scan_folder(folder: Path, xs: list[np.ndarray], scores: list[np.ndarray],
                 defects: np.ndarray) -> None:
-    """A scan folder as ``railwatch scan`` writes it: events where a pass's score is high."""
-    import json
-
+    """A scan folder of passes whose scores ``scores[i]`` are axle_1's (axle_2 has half of
+    them, body_1 none)."""
     for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
-        name = f"pass{i:02d}"
-        (folder / f"{name}.scan.json").write_text(json.dumps(
-            {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
-             "profile": tm.PROFILE_KIND}))
-        rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
-        for d in defects:
-            j = int(np.argmin(np.abs(x - d)))
-            rows.append(f"1.0,1.1,1.05,axle_1,axle,{s[j]:.3f},3.0,{x[j]:.3f}")
-        (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
-        channel = np.stack([s, 0.5 * s, np.zeros_like(s)], axis=1).astype(np.float32)
-        np.savez(folder / f"{name}.profile.npz", time_s=x / 20.0, position_m=x,
-                 channel_score=channel, channels=np.array(["axle_1", "axle_2", "body_1"]),
-                 groups=np.array(["axle", "axle", "body"]))
+        write_pass(folder, f"pass{i:02d}", x, x / 20.0,
+                   np.stack([s, 0.5 * s, np.zeros_like(s)], axis=1),
+                   ("axle_1", "axle_2", "body_1"), ("axle", "axle", "body"), defects)
 
 
 def test_fused_map_of_a_scan_folder(tmp_path: Path) -> None:
@@ -285,18 +292,8 @@ def sided_scan_folder(folder: Path, world: str, n: int = 6, seed: int = 7,
             s[near, channel] += 2.0 * rng.exponential(size=near.sum()) + 2.0
         if not up:  # recorded in time order: down the track
             x, s = x[::-1], s[::-1]
-        name = f"pass{i:02d}"
-        (folder / f"{name}.scan.json").write_text(json.dumps(
-            {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
-             "profile": tm.PROFILE_KIND}))
-        rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
-        for d in defects:
-            j = int(np.argmin(np.abs(x - d)))
-            rows.append(f"1.0,1.1,1.05,axle_1,axle,{s[j].max():.3f},3.0,{x[j]:.3f}")
-        (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
-        np.savez(folder / f"{name}.profile.npz", time_s=np.arange(len(x)) / 100.0,
-                 position_m=x, channel_score=s.astype(np.float32),
-                 channels=np.array(["axle_1", "axle_2"]), groups=np.array(["axle", "axle"]))
+        write_pass(folder, f"pass{i:02d}", x, np.arange(len(x)) / 100.0, s,
+                   ("axle_1", "axle_2"), ("axle", "axle"), defects)
     return defects, rail
 
 
