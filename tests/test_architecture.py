@@ -27,6 +27,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "railwatch.recordings.wheel",
      "railwatch.scoring"),  # recordings; the scoring library; evidence fused across passes
     ("railwatch.synthetic",),  # synthetic windows and runs (runs written as recordings)
+    ("railwatch.physics",),  # the vehicle-track world: passes written as recordings, twins
     ("railwatch.detectors",),
     ("railwatch.evaluation", "railwatch.evaluation.metrics"),
     ("railwatch.deploy",),  # a detector exported to, and loaded from, ONNX

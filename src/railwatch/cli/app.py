@@ -38,6 +38,8 @@ def cli(ctx: click.Context, quiet: bool) -> None:
       railwatch train --detector aft-attention --data train.npz --out model/
       railwatch score --model model/ --data test.npz --out scores.npz
       railwatch evaluate --data test.npz --scores scores.npz
+    Simulate a coach over a track with real squats, joints and welds (2 kHz recordings):
+      railwatch simulate --out physics/
 
     Run any command with --help for its options.
     """
@@ -46,9 +48,9 @@ def cli(ctx: click.Context, quiet: bool) -> None:
                         format="%(message)s", stream=sys.stderr)
 
 
-for command in (data.generate, data.generate_run, data.figure, models.list_detectors, models.train,
-                models.score, models.evaluate, models.export, recordings.detect, tracks.scan,
-                tracks.track_map, bench.bench):
+for command in (data.generate, data.generate_run, data.simulate, data.figure,
+                models.list_detectors, models.train, models.score, models.evaluate,
+                models.export, recordings.detect, tracks.scan, tracks.track_map, bench.bench):
     cli.add_command(command)
 
 

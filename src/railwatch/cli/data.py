@@ -4,7 +4,9 @@ recording) and ``figure stages``."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -88,6 +90,36 @@ def figure_stages(out: Path, seed: int) -> None:
     info(f"wrote {out}")
 
 
+def odometry_options(prefix: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """The options of repeated passes' positions and direction, shared by ``generate-run`` and
+    ``simulate`` (``prefix`` opens each help text)."""
+    options = [
+        click.option("--odometry-offset", type=click.FloatRange(min=0), default=1.0,
+                     show_default=True,
+                     help=f"{prefix}std (m) of each pass's position offset error."),
+        click.option("--odometry-drift", type=click.FloatRange(min=0), default=0.0005,
+                     show_default=True, help=f"{prefix}std of each pass's relative scale error "
+                                             "(0.0005: 0.5 m per km)."),
+        click.option("--odometry-walk", type=click.FloatRange(min=0), default=0.3,
+                     show_default=True,
+                     help=f"{prefix}random walk of the position, m per square root of km."),
+        click.option("--odometry-relative", is_flag=True,
+                     help=f"{prefix}positions counted from each pass's start (an odometer "
+                          "alone), not the track's (GNSS-aided)."),
+        click.option("--push-pull", is_flag=True,
+                     help=f"{prefix}the vehicle runs back without turning, so each side stays "
+                          "on its rail (default: turned at the ends, a defect is felt on the "
+                          "other side on the way back)."),
+    ]
+
+    def wrap(f: Callable[..., Any]) -> Callable[..., Any]:
+        for option in reversed(options):
+            f = option(f)
+        return f
+
+    return wrap
+
+
 @click.command("generate-run")
 @click.option("--minutes", type=float, default=10.0, show_default=True,
               help="Length of the run.")
@@ -109,20 +141,7 @@ def figure_stages(out: Path, seed: int) -> None:
               help="With --passes: defects on the track, at fixed positions.")
 @click.option("--format", "fmt", type=click.Choice(["parquet", "csv", "h5", "mat"]),
               default="parquet", show_default=True, help="With --passes: the recordings' format.")
-@click.option("--odometry-offset", type=click.FloatRange(min=0), default=1.0, show_default=True,
-              help="With --passes: std (m) of each pass's position offset error.")
-@click.option("--odometry-drift", type=click.FloatRange(min=0), default=0.0005,
-              show_default=True, help="With --passes: std of each pass's relative scale error "
-                                      "(0.0005: 0.5 m per km).")
-@click.option("--odometry-walk", type=click.FloatRange(min=0), default=0.3, show_default=True,
-              help="With --passes: random walk of the position, m per square root of km.")
-@click.option("--odometry-relative", is_flag=True,
-              help="With --passes: positions counted from each pass's start (an odometer "
-                   "alone), not the track's.")
-@click.option("--push-pull", is_flag=True,
-              help="With --passes: the vehicle runs back without turning, so each side stays "
-                   "on its rail (default: turned at the ends, a defect is felt on the other "
-                   "side on the way back).")
+@odometry_options("With --passes: ")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Recording file: .csv, .parquet, .h5 or .mat (the extension picks); with "
                    "--passes a folder.")
@@ -175,3 +194,95 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
                                              stage=stage, loud_stretches=loud_stretches)
     info(f"wrote {minutes:g} min at {fs:g} Hz with {len(run.defects)} defects: {out}, "
          f"{layout_path}, {truth_path}")
+
+
+@click.command()
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False), required=True,
+              help="Folder to write the track and its passes into.")
+@click.option("--passes", type=click.IntRange(min=1), default=6, show_default=True,
+              help="Passes over the track (odd ones run back).")
+@click.option("--track-km", type=click.FloatRange(min=0.2), default=5.0, show_default=True,
+              help="The track's length.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the track (its items, irregularity, roughness, supports) and of "
+                   "every pass; the same seed gives the same files.")
+@click.option("--fs", type=float, default=2000.0, show_default=True,
+              help="The recordings' rate (Hz), as a field logger's (1-5 kHz).")
+@click.option("--speed", "speed_text", default="10-30", show_default=True,
+              help="Speed range LOW-HIGH in m/s: each pass draws a new speed every 0.5-1.5 km "
+                   "in it.")
+@click.option("--irregularity", default="german-high", show_default=True,
+              help="Long-wave irregularity spectrum: german-low, german-high, fra-1 ... fra-6, "
+                   "or none.")
+@click.option("--roughness", type=click.Choice(["average", "iso3095", "none"]),
+              default="average", show_default=True,
+              help="Short-wave rail roughness: an average network's, or the ISO 3095 limit "
+                   "(freshly ground rail).")
+@click.option("--wheel-flat", "flat_mm", type=click.FloatRange(min=0, max=3), default=0.0,
+              show_default=True, help="Depth (mm) of a flat on the sensor wheelset's left "
+                                      "wheel (0: none).")
+@click.option("--format", "fmt", type=click.Choice(["parquet", "csv", "h5", "mat"]),
+              default="parquet", show_default=True, help="The recordings' format.")
+@odometry_options("")
+@click.pass_obj
+def simulate(obj: dict, out: Path, passes: int, track_km: float, seed: int, fs: float,
+             speed_text: str, irregularity: str, roughness: str, flat_mm: float, fmt: str,
+             odometry_offset: float, odometry_drift: float, odometry_walk: float,
+             odometry_relative: bool, push_pull: bool) -> None:
+    """Simulate a coach running over a track with real rail defects: field-rate recordings from
+    a vehicle-track dynamics model, each with its clean twin.
+
+    \b
+    The physics (every parameter and its source: docs/physics.md):
+      coach    the Manchester benchmark passenger coach: body, two bogies, four
+               wheelsets, primary and secondary suspension (vertical and roll)
+      track    UIC60 rail on pads, sleepers every 0.6 m, ballast, subgrade; irregularity
+               from a standard spectrum, short-wave roughness, varying supports
+      contact  Hertz, the wheel free to leave the rail and land again
+      defects  squats (2-10 cm, 0.1-1.5 mm), dipped joints, welds, broken-rail steps,
+               corrugation, each on one rail
+      features turnouts (switch, crossing nose), bridge transitions, level crossings:
+               they answer on every pass and are not defects
+      sensors  axle boxes, bogie frame and car body, left and right, with noise,
+               AC coupling and an anti-alias filter, at --fs
+    \b
+    Writes into OUT: layout.toml, passNN.<format> (positions from the odometry),
+    passNN.defects.csv and passNN.features.csv (when each pass crossed each item),
+    twins/passNN.<format> (the same pass without its defects and sensor noise),
+    track.defects.csv, track.features.csv and physics.json (every setting).
+    A 5-km pass takes 10-20 s on 2 cores.
+    Examples:
+      railwatch simulate --out physics/
+      railwatch simulate --out slow/ --passes 10 --speed 8-15 --odometry-relative
+    """
+    from railwatch.physics.files import write_world
+    from railwatch.physics.passes import PassPlan
+    from railwatch.physics.world import World
+    from railwatch.progress import Progress
+    from railwatch.synthetic.track import Odometry
+
+    if out.exists() and not out.is_dir():
+        raise RailwatchError(f"--out {out} is a file: give a folder")
+    low, sep, high = speed_text.partition("-")
+    try:
+        speed = (float(low), float(high if sep else low))
+    except ValueError:
+        raise RailwatchError(f"--speed {speed_text!r}: give LOW-HIGH in m/s, e.g. 10-30") \
+            from None
+    world = World(length_m=track_km * 1000.0,
+                  irregularity=None if irregularity == "none" else irregularity,
+                  roughness=None if roughness == "none" else roughness, flat_mm=flat_mm)
+    plan = PassPlan(push_pull=push_pull, speed_ms=speed, fs=fs)
+    world.check()
+    plan.check()
+    started = time.perf_counter()
+    with Progress(passes, "passes", "passes", enabled=obj["progress"], every_s=0.0) as bar:
+        track, paths = write_world(
+            out, passes, world, seed=seed, plan=plan,
+            odometry=Odometry(odometry_offset, odometry_drift, odometry_walk, odometry_relative),
+            suffix=f".{fmt}", progress=bar.update)
+    kinds = ", ".join(f"{sum(d.kind == k for d in track.defects)} {k}s"
+                      for k in sorted({d.kind for d in track.defects}))
+    info(f"wrote {passes} passes over {track_km:g} km ({kinds}; {len(track.features)} features) "
+         f"into {out} in {time.perf_counter() - started:.0f} s ({paths[0].name} ...)")
+

@@ -197,7 +197,7 @@ def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int 
                           "channel": CHANNELS[c], "group": d.group, "kind": d.kind,
                           "offset": d.offset})
     crossings.sort(key=lambda row: row["time_s"])
-    recorded = _odometry(odo_rng, true[0], travel_m, direction, odometry)
+    recorded = recorded_position(odo_rng, true[0], travel_m, direction, odometry)
     for row in crossings:
         row["recorded_m"] = float(np.interp(row["center_s"], t, recorded))
     run = Run(fs=fs, data=data, time=t, speed=speed, position=recorded,
@@ -245,7 +245,7 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
     return track, paths
 
 
-def _odometry(rng: np.random.Generator, start: float, travel_m: NDArray[np.float64],
+def recorded_position(rng: np.random.Generator, start: float, travel_m: NDArray[np.float64],
               direction: int, odo: Odometry) -> NDArray[np.float64]:
     """The recorded position: start + offset error + direction · (1 + scale error) · travel +
     a random walk of ``walk_m`` per √km (relative odometry: the offset error + (1 + scale

@@ -1,0 +1,71 @@
+"""``railwatch simulate``: the folder it writes, read back as recordings; one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from railwatch.cli import main
+from railwatch.recordings.layout import load_layout
+from railwatch.recordings.readers import Recording
+from railwatch.recordings.track_map import read_truth
+
+
+def test_simulate_writes_passes_twins_and_truth(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    out = tmp_path / "phys"
+    assert main(["simulate", "--out", str(out), "--passes", "2", "--track-km", "0.8",
+                 "--seed", "3", "--speed", "15-25", "--format", "csv"]) == 0
+    assert "wrote 2 passes over 0.8 km" in capsys.readouterr().err
+    layout = load_layout(out / "layout.toml")
+    assert layout.fs == 2000.0 and layout.groups == ("axle", "axle", "bogie", "bogie", "body",
+                                                     "body")
+    truth = read_truth(out / "track.defects.csv")
+    info = json.loads((out / "physics.json").read_text())
+    assert [p["direction"] for p in info["passes"]] == [1, -1]
+    assert info["sensor_noise_ms2"]["axle_left"] == pytest.approx(0.1)
+    for name in ("pass01", "pass02"):
+        rec = Recording(out / f"{name}.csv", layout)
+        twin = Recording(out / "twins" / f"{name}.csv", layout)
+        assert rec.duration_s == pytest.approx(twin.duration_s)
+        with open(out / f"{name}.defects.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        assert rows and {r["kind"] for r in rows} <= {"squat", "joint", "weld", "step",
+                                                      "corrugation"}
+        starts = {round(float(r["position_m"]), 3) for r in rows}
+        assert starts <= {round(float(s), 3) for s in truth[:, 0]}
+        # The odometry's position is within a few metres of where the defect is.
+        for r in rows:
+            assert abs(float(r["recorded_m"]) - float(r["position_m"])) < 10
+            assert 15 <= float(r["speed_ms"]) <= 25
+            assert r["channel"] in ("axle_left", "axle_right")
+    assert (out / "track.features.csv").is_file() and (out / "pass01.features.csv").is_file()
+
+
+def test_simulate_is_reproducible(tmp_path: Path) -> None:
+    for name in ("a", "b"):
+        assert main(["-q", "simulate", "--out", str(tmp_path / name), "--passes", "1",
+                     "--track-km", "0.4", "--seed", "5"]) == 0
+    import pandas as pd
+
+    a, b = (pd.read_parquet(tmp_path / n / "pass01.parquet") for n in ("a", "b"))
+    np.testing.assert_array_equal(a.to_numpy(), b.to_numpy())
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--speed", "50-60"], "speeds 50-60 m/s"),
+    (["--speed", "fast"], "--speed 'fast'"),
+    (["--fs", "50"], "--fs 50 Hz"),
+    (["--irregularity", "bumpy"], "irregularity 'bumpy'"),
+    (["--track-km", "0.1"], "--track-km"),
+])
+def test_impossible_settings_are_one_line_errors(tmp_path: Path, capsys, args,  # type: ignore[no-untyped-def]
+                                                 message) -> None:
+    out = tmp_path / "x"
+    assert main(["simulate", "--out", str(out), *args]) != 0
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (out / "track.defects.csv").exists()
