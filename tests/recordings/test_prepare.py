@@ -9,9 +9,12 @@ from hypothesis import strategies as st
 
 from railwatch.errors import RailwatchError
 from railwatch.recordings.prepare import (
+    FIELD_WINDOW_M,
+    FIELD_WINDOW_S,
     Preparation,
     Resampler,
     antialias_filter,
+    choose,
     frame,
     n_windows,
     resample,
@@ -91,3 +94,40 @@ def test_frame_covers_every_sample(n_extra: int, window: int, hop: int) -> None:
     assert covered.all()
     with pytest.raises(RailwatchError, match="shorter than one window"):
         frame(x[:window - 1] if window > 1 else x[:0], window, hop)
+
+
+GROUPS = ("axle", "axle", "bogie", "bogie", "body", "body")
+
+
+def test_field_scale_keeps_the_rate_and_scores_the_axle_boxes() -> None:
+    """A real rail: a 2-10 cm squat lasts 1-10 ms, so the file's rate is kept; a window covers
+    10 m of track at the median speed (clipped to 0.25-2 s); the axle boxes are scored."""
+    c = choose(GROUPS, "field", 2000.0, median_speed=20.0)
+    assert c.preparation.rate is None and c.groups == ("axle",)
+    assert c.preparation.window_s == pytest.approx(FIELD_WINDOW_M / 20.0)
+    assert c.preparation.detect_hop_s == c.preparation.window_s
+    assert c.preparation.train_hop_s == pytest.approx(c.preparation.window_s / 2)
+    assert any("behind the suspension" in r for r in c.reasons)
+    assert choose(GROUPS, "field", 2000.0, 2.0).preparation.window_s == FIELD_WINDOW_S[1]
+    assert choose(GROUPS, "field", 2000.0, 80.0).preparation.window_s == FIELD_WINDOW_S[0]
+    assert choose(GROUPS, "field", 2000.0, None).preparation.window_s == 0.5
+    # The window is a whole number of samples at the rate it is scored at.
+    assert choose(GROUPS, "field", 2048.0, 23.0).preparation.window_s * 2048 % 1 == \
+        pytest.approx(0.0, abs=1e-9)
+
+
+def test_benchmark_scale_is_the_papers_preparation() -> None:
+    c = choose(GROUPS, "benchmark", 2000.0, median_speed=22.5)
+    assert c.preparation == Preparation() and c.groups == ("axle", "bogie", "body")
+
+
+def test_choices_can_be_overridden_and_say_plainly_what_to_choose() -> None:
+    c = choose(GROUPS, "field", 2000.0, 20.0, rate=1000.0, window_s=1.0, hop_s=0.25,
+               chosen_groups=("axle", "bogie"))
+    assert (c.preparation.rate, c.preparation.window_s, c.preparation.train_hop_s) == \
+        (1000.0, 1.0, 0.25)
+    assert c.groups == ("axle", "bogie")
+    sensors = choose(("sensor",) * 3, "field", 1000.0, 15.0)
+    assert sensors.groups == ("sensor",) and any("--groups" in r for r in sensors.reasons)
+    with pytest.raises(RailwatchError, match="--groups wheel"):
+        choose(GROUPS, "field", 2000.0, 20.0, chosen_groups=("wheel",))

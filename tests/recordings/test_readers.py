@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +127,13 @@ def test_layout_files_and_errors(tmp_path: Path) -> None:
     assert load_layout(path) == LAYOUT
     (tmp_path / "layout.yaml").write_text("fs: 200\nchannels: [a, b]\ntime: t\nspeed: v\n")
     assert load_layout(tmp_path / "layout.yaml").channels == ("a", "b")
+    assert load_layout(tmp_path / "layout.yaml").scale == "field"  # a real rail unless said
+    bench = replace(LAYOUT, scale="benchmark")
+    path.write_text(layout_toml(bench))
+    assert load_layout(path) == bench and "scale" in path.read_text()
+    assert LAYOUT.select(("body",)).channels == ("b",)
+    with pytest.raises(RailwatchError, match="no channel of group bogie"):
+        LAYOUT.select(("bogie",))
     for values, message in [
         ({"channels": ["a"]}, "'fs'"),
         ({"fs": "fast", "channels": ["a"]}, "fs must be a number"),
@@ -134,6 +142,7 @@ def test_layout_files_and_errors(tmp_path: Path) -> None:
         ({"fs": 100, "channels": ["a"], "speeed": "v"}, "unknown key"),
         ({"fs": 100, "channels": ["a"], "time": "a"}, "both a channel"),
         ({"fs": 100, "channels": ["a", "b"], "groups": ["x"]}, "1 groups for 2 channels"),
+        ({"fs": 100, "channels": ["a"], "scale": "paper"}, "scale is 'paper'"),
     ]:
         with pytest.raises(RailwatchError, match=message):
             parse_layout(values)

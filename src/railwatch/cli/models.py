@@ -37,12 +37,19 @@ and --layout a TOML/YAML file naming the channel columns, their sensor groups an
   [channels]
   axle_left = "axle"     # column = sensor group, in the model's channel order
   ...
-They are resampled (2000 -> 100 Hz by default), cut into 2-s windows every 1 s and trained on
-without labels; the model folder keeps the layout, the preparation and an event threshold
-for 'railwatch detect'. --wheel-comb takes out, before resampling, impulses that repeat at every
-turn of a wheel (flat or out-of-round wheels): each channel's turn is found in each recording
-(its cepstrum over distance; channels without a clear one are left alone) and every sample
-loses the mean of the samples 1 and 2 turns before and after it. It needs a position or speed
+How they are prepared follows the layout's scale (docs/recordings.md):
+  field (a real rail, the default)  the recording's rate kept, windows of 10 m of track at the
+      median speed (0.5 s at 20 m/s), only the axle-box channels scored (group 'axle'):
+      a 2-10 cm defect is crossed in 1-10 ms and rings the wheel at 50-1000 Hz
+  benchmark (generate-run's runs)   resampled to 100 Hz, 2-s windows every 1 s, every channel:
+      their defects are the benchmark's, twenty times longer (the paper's x20 scaling)
+--resample, --window, --hop and --groups override the choice, which train prints. Training
+uses no labels; the model folder keeps the layout of the scored channels, the preparation and
+an event threshold for 'railwatch detect'.
+--wheel-comb takes out, before resampling, impulses that repeat at every turn of a wheel (flat
+or out-of-round wheels): each channel's turn is found in each recording (its cepstrum over
+distance; channels without a clear one are left alone) and every sample loses the mean of the
+samples 1 and 2 turns before and after it. It needs a position or speed
 column; detect and scan then do the same to every recording.""")
 @click.option("--detector", "name", required=True, metavar="NAME",
               help="Registry name (see 'railwatch detectors'), e.g. aft-attention.")
@@ -53,12 +60,17 @@ column; detect and scan then do the same to every recording.""")
 @click.argument("more_recordings", nargs=-1, type=click.Path(path_type=Path))
 @click.option("--layout", "layout_file", type=click.Path(path_type=Path),
               help="Recording layout (TOML/YAML): columns, groups, rate, time/speed/position.")
-@click.option("--resample", default="100", show_default=True, metavar="HZ|none",
-              help="Rate the model works at, at most the recording's (2048 -> 100 Hz is 25/512).")
-@click.option("--window", "window_s", type=float, default=2.0, show_default=True,
-              help="Window length in seconds (recordings).")
-@click.option("--hop", "hop_s", type=float, default=1.0, show_default=True,
-              help="Seconds between training windows (recordings).")
+@click.option("--resample", default="auto", show_default=True, metavar="auto|HZ|none",
+              help="Rate the model works at, at most the recording's (2048 -> 100 Hz is 25/512); "
+                   "auto: by the layout's scale (below).")
+@click.option("--window", "window_s", type=click.FloatRange(min=0, min_open=True),
+              help="Window length in seconds (recordings; default by the layout's scale).")
+@click.option("--hop", "hop_s", type=click.FloatRange(min=0, min_open=True),
+              help="Seconds between training windows (recordings; default half a window at "
+                   "field scale, 1 s at the benchmark's).")
+@click.option("--groups", "groups_text", default="auto", show_default=True,
+              help="Sensor groups to score, comma-separated (recordings), or all; auto: the "
+                   "axle boxes at field scale, every group at the benchmark's.")
 @click.option("--wheel-comb", is_flag=True,
               help="Comb out wheel-periodic impulses before resampling (recordings with a "
                    "position or speed column; see below).")
@@ -71,7 +83,8 @@ column; detect and scan then do the same to every recording.""")
 @click.pass_obj
 def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
           more_recordings: tuple[Path, ...], layout_file: Path | None, resample: str,
-          window_s: float, hop_s: float, wheel_comb: bool, out: Path,
+          window_s: float | None, hop_s: float | None, groups_text: str, wheel_comb: bool,
+          out: Path,
           config_file: Path | None, settings: tuple[str, ...]) -> None:
     """Train a detector, without labels, on a window file or on recordings, and save it.
 
@@ -109,8 +122,12 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
              f"saved to {out}")
         return
     from railwatch.recordings.layout import load_layout
-    from railwatch.recordings.pipeline import fit_recording_model, training_windows
-    from railwatch.recordings.prepare import Preparation
+    from railwatch.recordings.pipeline import (
+        fit_recording_model,
+        median_speed,
+        training_windows,
+    )
+    from railwatch.recordings.prepare import choose
     from railwatch.recordings.readers import Recording
     from railwatch.recordings.wheel import check_layout
 
@@ -118,13 +135,22 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
         raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
                              "see 'railwatch train --help')")
     layout = load_layout(layout_file)
-    prep = Preparation(rate=parse_rate(resample), window_s=window_s, train_hop_s=hop_s,
-                       detect_hop_s=min(Preparation.detect_hop_s, window_s),
-                       wheel_turns=2 if wheel_comb else 0)
-    prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
+    rate = "auto" if resample.strip().lower() == "auto" else parse_rate(resample)
+    chosen = None if groups_text.strip().lower() in ("auto", "") else (
+        tuple(dict.fromkeys(layout.groups)) if groups_text.strip().lower() == "all" else
+        tuple(g.strip() for g in groups_text.split(",") if g.strip()))
     if wheel_comb:
         check_layout(layout)
     sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
+    speed = median_speed(sources) if layout.scale == "field" and not window_s else None
+    choice = choose(layout.groups, layout.scale, layout.fs, speed, rate=rate, window_s=window_s,
+                    hop_s=hop_s, chosen_groups=chosen, wheel_turns=2 if wheel_comb else 0)
+    prep = choice.preparation
+    prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
+    for reason in choice.reasons:
+        info(reason)
+    layout = layout.select(choice.groups)
+    sources = [Recording(p, layout) for p in paths]
     total = sum(r.duration_s for r in sources)
     with progress_seconds(total, "reading") as bar:
         X = training_windows(sources, prep,

@@ -50,7 +50,7 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     if plot is not None:
         writable_file(plot)
     rm = pipeline.load_recording_model(model)
-    layout = load_layout(layout_file) if layout_file else rm.layout
+    layout = rm.layout_for(load_layout(layout_file) if layout_file else None)
     rec = Recording(recording, layout)
     marks = _truth_times(truth) if truth else None
     started = time.perf_counter()

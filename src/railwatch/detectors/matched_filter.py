@@ -79,15 +79,19 @@ def robust_ar(x: F64, order: int, huber_k: float, iterations: int, ridge: float)
     valid range) share the coefficients; both are reweighted by Huber weights of their residuals.
     """
     p = order
+    n_series, n = x.shape[0], x.shape[1] - p
     past = sliding_window_view(x, p + 1, axis=1)  # (B, T − p, p + 1): x_{t−p} .. x_t
-    fwd = np.concatenate([past[:, :, p - 1::-1], np.ones_like(past[:, :, :1])], axis=2)
-    bwd = np.concatenate([past[:, :, 1:], np.ones_like(past[:, :, :1])], axis=2)
-    design = np.concatenate([fwd, bwd], axis=1)  # (B, R, p + 1), R = 2 (T − p)
-    target = np.concatenate([past[:, :, p], past[:, :, 0]], axis=1)  # (B, R)
+    design = np.empty((n_series, 2 * n, p + 1))  # (B, R, p + 1), R = 2 (T − p)
+    design[:, :n, :p] = past[:, :, p - 1::-1]  # forward rows
+    design[:, n:, :p] = past[:, :, 1:]  # backward rows
+    design[:, :, p] = 1.0  # intercept
+    target = np.empty((n_series, 2 * n))  # (B, R)
+    target[:, :n], target[:, n:] = past[:, :, p], past[:, :, 0]
     weights = np.ones_like(target)
     eye = np.eye(p + 1)
+    weighted = np.empty_like(design)  # one buffer for every pass
     for it in range(iterations + 1):
-        weighted = design * weights[:, :, None]  # (B, R, p + 1)
+        np.multiply(design, weights[:, :, None], out=weighted)  # (B, R, p + 1)
         gram = weighted.transpose(0, 2, 1) @ design  # (B, p + 1, p + 1)
         rhs = (weighted.transpose(0, 2, 1) @ target[:, :, None])[:, :, 0]  # (B, p + 1)
         scale = np.trace(gram, axis1=1, axis2=2)[:, None, None] / (p + 1)

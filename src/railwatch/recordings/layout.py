@@ -6,6 +6,7 @@ A small TOML or YAML file (``--layout``), for example::
     time = "t"                  # optional: time column (s); checked for gaps and rate
     speed = "speed"             # optional: train speed (m/s), integrated to a track position
     position = "pos"            # optional: track position (m); preferred over speed
+    scale = "field"             # optional: "field" (a real rail, the default) or "benchmark"
 
     [channels]                  # accelerometer columns, in the order the model sees them,
     axle_left = "axle"          # each with its sensor group
@@ -17,19 +18,25 @@ A small TOML or YAML file (``--layout``), for example::
 
 ``channels`` may also be a plain list of names (groups then default to ``"sensor"``). A name is a
 column (CSV, Parquet), a dataset path (HDF5, e.g. ``"acc/axle_left"``) or a variable (MATLAB).
+
+``scale`` says how long a defect lasts in the file: ``"field"`` (the default) is a real rail,
+where a 2-10 cm defect is crossed in milliseconds; ``"benchmark"`` marks the recordings of
+``railwatch generate-run``, whose defects are the benchmark's, twenty times longer (a 10-ms spike,
+0.05-0.2-s boxes). ``train`` chooses its preparation by it (``docs/recordings.md``).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from railwatch.errors import RailwatchError
 from railwatch.mapping_files import read_mapping
 
-KEYS = ("fs", "channels", "time", "speed", "position")
+KEYS = ("fs", "channels", "time", "speed", "position", "scale")
+SCALES = ("field", "benchmark")
 
 
 @dataclass(frozen=True)
@@ -42,6 +49,7 @@ class Layout:
     time: str | None = None
     speed: str | None = None
     position: str | None = None
+    scale: str = "field"
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -52,7 +60,18 @@ class Layout:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["channels"], d["groups"] = list(self.channels), list(self.groups)
+        if self.scale == "field":  # the default: model files written before it stay the same
+            del d["scale"]
         return d
+
+    def select(self, groups: tuple[str, ...]) -> Layout:
+        """The layout of the channels of ``groups`` only (in their order)."""
+        keep = [i for i, g in enumerate(self.groups) if g in groups]
+        if not keep:
+            raise RailwatchError(f"no channel of group {', '.join(groups)}: the layout's groups "
+                                 f"are {', '.join(dict.fromkeys(self.groups))}")
+        return replace(self, channels=tuple(self.channels[i] for i in keep),
+                       groups=tuple(self.groups[i] for i in keep))
 
     @classmethod
     def from_dict(cls, values: dict[str, Any], source: str = "layout") -> Layout:
@@ -95,7 +114,11 @@ def parse_layout(values: Any, source: str = "layout") -> Layout:
     if clash:
         raise RailwatchError(f"{source}: column {clash[0]!r} is both a channel and time/speed/"
                              "position")
-    return Layout(fs=fs, channels=channels, groups=groups, **named)
+    scale = str(values.get("scale", "field"))
+    if scale not in SCALES:
+        raise RailwatchError(f"{source}: scale is {scale!r}: use \"field\" (a real rail) or "
+                             "\"benchmark\" (generate-run's recordings)")
+    return Layout(fs=fs, channels=channels, groups=groups, **named, scale=scale)
 
 
 def load_layout(path: str | os.PathLike[str]) -> Layout:
@@ -110,6 +133,9 @@ def layout_toml(layout: Layout) -> str:
         value = getattr(layout, key)
         if value:
             lines.append(f"{key} = {json.dumps(value)}")
+    if layout.scale != "field":
+        lines.append(f"scale = {json.dumps(layout.scale)}  # defects 20x longer than on a "
+                     "real rail: the benchmark's")
     lines += ["", "[channels]"]
     lines += [f"{json.dumps(c)} = {json.dumps(g)}" for c, g in zip(layout.channels, layout.groups,
                                                                    strict=True)]

@@ -72,15 +72,44 @@ def training_windows(recordings: Sequence[Recording], prep: Preparation,
     return np.concatenate(out)
 
 
-#: The event threshold of a model trained on recordings (``train --recordings``).
-EVENT_THRESHOLD = GumbelNull(tail=0.02)
+#: Windows of normal recording per minute above the event threshold, by the null of training
+#: windows (:func:`event_threshold`).
+EVENTS_PER_MINUTE = 0.6
+
+
+def event_threshold(prep: Preparation) -> GumbelNull:
+    """The event threshold's rule for windows of ``prep``: the Gumbel null of the training
+    windows at a tail of :data:`EVENTS_PER_MINUTE` windows per minute of recording, so that
+    short field-scale windows do not raise false events by their number (2-s windows: a tail
+    of 0.02)."""
+    return GumbelNull(tail=round(EVENTS_PER_MINUTE * prep.window_s / 60.0, 12))
+
+
+def median_speed(recordings: Sequence[Recording], every: int = 50) -> float | None:
+    """The median speed (m/s) over recordings with a speed or position column (every
+    ``every``-th sample; from the position's steps without a speed column), or None."""
+    speeds = []
+    for rec in recordings:
+        if not (rec.layout.speed or rec.layout.position):
+            continue
+        for chunk in rec.chunks():
+            if chunk.speed is not None:
+                speeds.append(np.abs(chunk.speed[::every]))
+            elif chunk.position is not None and len(chunk.position) > every:
+                step = np.abs(np.diff(chunk.position[::every])) * rec.layout.fs / every
+                speeds.append(step)
+    if not speeds:
+        return None
+    speed = float(np.median(np.concatenate(speeds)))
+    return speed if speed > 0 else None
 
 
 def recording_info(layout: Layout, prep: Preparation,
-                   rule: ThresholdRule = EVENT_THRESHOLD) -> dict[str, str]:
+                   rule: ThresholdRule | None = None) -> dict[str, str]:
     """The extra file a recordings model carries (``Detector.save(extra_files=...)``): the
     layout, the preparation and the rule that set the detector's threshold (the value itself is
     stored once, with the detector's statistics)."""
+    rule = rule or event_threshold(prep)
     info = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
             "threshold_rule": rule.describe()}
     return {model_folder.RECORDING: json.dumps(info, indent=2)}
@@ -88,10 +117,11 @@ def recording_info(layout: Layout, prep: Preparation,
 
 def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
                         prep: Preparation, out: str | os.PathLike[str],
-                        rule: ThresholdRule = EVENT_THRESHOLD) -> float:
+                        rule: ThresholdRule | None = None) -> float:
     """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set its
-    threshold by ``rule`` (:data:`EVENT_THRESHOLD`) and save the model folder with
+    threshold by ``rule`` (default :func:`event_threshold`) and save the model folder with
     ``recording.json``; returns the threshold."""
+    rule = rule or event_threshold(prep)
     detector.fit(X)
     threshold = detector.set_threshold(rule)
     detector.save(out, extra_files=recording_info(layout, prep, rule))
@@ -106,6 +136,16 @@ class RecordingModel:
     layout: Layout
     preparation: Preparation
     threshold: float
+
+    def layout_for(self, given: Layout | None) -> Layout:
+        """The layout to read recordings with: the model's, or ``given`` (other column names)
+        cut to the model's sensor groups when it names more channels than the model scores."""
+        if given is None:
+            return self.layout
+        if len(given.channels) != len(self.layout.channels) and \
+                set(self.layout.groups) <= set(given.groups):
+            return given.select(tuple(dict.fromkeys(self.layout.groups)))
+        return given
 
 
 def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:

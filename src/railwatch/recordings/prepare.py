@@ -1,7 +1,16 @@
-"""Preparing a recording for a detector: anti-aliased resampling and windowing.
+"""Preparing a recording for a detector: the rate, window and sensor groups it is scored at,
+anti-aliased resampling and windowing.
 
-The paper scales its 2000 Hz field data by ×20 to the benchmark's 100 Hz; railwatch does the same
-by default (``Preparation.rate`` = 100 Hz, or ``None`` to keep the file's rate). Resampling is by a
+:func:`choose` picks the preparation from the layout's scale (``docs/recordings.md``). On a
+real rail (``scale = "field"``, the default) a 2-10 cm defect is crossed in 1-10 ms and rings the
+wheel at 50-1000 Hz: the recording keeps its rate, a window covers :data:`FIELD_WINDOW_M` of
+track at the vehicle's median speed, and the axle-box channels are scored (the bogie frame and
+the car body, behind the suspension, carry none of a short defect's signature but their own
+motion). The benchmark's recordings (``scale = "benchmark"``, ``generate-run``) model a defect
+twenty times longer: the paper's ×20 scaling, which keeps sample counts, applies, and they are
+resampled to 100 Hz in 2-s windows, every channel scored (``Preparation()``).
+
+Resampling (``Preparation.rate``, or ``None`` to keep the file's rate) Resampling is by a
 rational factor ``up / down`` (2000 -> 100 Hz: 1/20; 2048 -> 100 Hz: 25/512), polyphase, behind a
 linear-phase low-pass FIR filter (Kaiser window, cut-off at 80 % of the new Nyquist frequency,
 about 80 dB stop-band), applied in a streaming form: the output is the same whatever the block
@@ -26,7 +35,8 @@ from railwatch.errors import RailwatchError
 
 @dataclass(frozen=True)
 class Preparation:
-    """How recordings become windows: the model's rate, window length and hop (seconds)."""
+    """How recordings become windows: the model's rate, window length and hop (seconds). The
+    defaults are the benchmark's scale (:func:`choose`)."""
 
     rate: float | None = 100.0  # Hz after resampling; None keeps the recording's rate
     window_s: float = 2.0  # window length (the benchmark's 2 s)
@@ -80,6 +90,86 @@ class Preparation:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+#: Track a field-scale window covers (m): the impact and its ringing, sixteen sleeper bays and
+#: three wheel turns whatever the speed (0.5 s at 20 m/s); clipped to FIELD_WINDOW_S seconds.
+FIELD_WINDOW_M = 10.0
+FIELD_WINDOW_S = (0.25, 2.0)
+#: The window without a speed or position column: 10 m at 20 m/s.
+FIELD_WINDOW_DEFAULT_S = 0.5
+#: Group names of axle-box sensors (any case): the channels scored at field scale.
+AXLE_GROUPS = ("axle", "axlebox", "axle_box", "axle-box", "axleboxes", "axles")
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A preparation, the sensor groups to score, and why (a line each for the user)."""
+
+    preparation: Preparation
+    groups: tuple[str, ...]
+    reasons: tuple[str, ...]
+
+
+def choose(groups: tuple[str, ...], scale: str, fs: float, median_speed: float | None,
+           rate: float | None | str = "auto", window_s: float | None = None,
+           hop_s: float | None = None, chosen_groups: tuple[str, ...] | None = None,
+           wheel_turns: int = 0) -> Choice:
+    """The preparation for recordings of ``scale`` with the layout's ``groups`` at ``fs`` Hz,
+    their vehicle's ``median_speed`` (m/s, None: unknown); the given ``rate`` (Hz, None: keep
+    the file's; ``"auto"``), ``window_s``, ``hop_s`` (training hop; at field scale the detection
+    hop is a whole window) and ``chosen_groups`` override the choice (module docstring)."""
+    reasons = []
+    present = tuple(dict.fromkeys(groups))
+    given: float | None = None if isinstance(rate, str) else rate
+    if scale == "benchmark":
+        base = Preparation()
+        rate = base.rate if rate == "auto" else given
+        window = window_s or base.window_s
+        hop = hop_s or base.train_hop_s
+        detect_hop = min(base.detect_hop_s, window)
+        use = chosen_groups or present
+        reasons.append(f"benchmark scale (the layout's scale): resampled to {rate or fs:g} Hz, "
+                       f"{window:g}-s windows, every channel, as the paper's x20 scaling")
+    else:
+        rate = given
+        if window_s:
+            window = window_s
+        elif median_speed:
+            window = float(np.clip(FIELD_WINDOW_M / median_speed, *FIELD_WINDOW_S))
+            reasons.append(f"field scale: {window:.3g}-s windows, {FIELD_WINDOW_M:g} m of track "
+                           f"at the median speed of {median_speed:.1f} m/s")
+        else:
+            window = FIELD_WINDOW_DEFAULT_S
+            reasons.append(f"field scale: {window:g}-s windows ({FIELD_WINDOW_M:g} m at 20 m/s; "
+                           "no speed or position column to measure the speed)")
+        window = round(window * (rate or fs)) / (rate or fs)
+        hop = hop_s or window / 2
+        detect_hop = window  # each sample scored once: 100x real time on one core at 2 kHz
+        if rate is None:
+            reasons.append(f"the recording's rate kept, {fs:g} Hz (a 2-10 cm defect is crossed "
+                           "in 1-10 ms at 10-30 m/s)")
+        axles = tuple(g for g in present if g.lower() in AXLE_GROUPS)
+        if chosen_groups:
+            use = chosen_groups
+        elif axles:
+            use = axles
+            others = [g for g in present if g not in axles]
+            if others:
+                reasons.append(f"scoring the {', '.join(axles)} channels; {', '.join(others)} "
+                               "sit behind the suspension, where a short defect's signature "
+                               "does not reach (--groups all scores them too)")
+        else:
+            use = present
+            reasons.append(f"no axle-box group (named {AXLE_GROUPS[0]}): scoring every group; "
+                           "choose the axle-box channels with --groups")
+    unknown = [g for g in use if g not in present]
+    if unknown:
+        raise RailwatchError(f"--groups {','.join(unknown)}: the layout's groups are "
+                             f"{', '.join(present)}")
+    prep = Preparation(rate=rate, window_s=window, train_hop_s=hop, detect_hop_s=detect_hop,
+                       wheel_turns=wheel_turns)
+    return Choice(prep, tuple(use), tuple(reasons))
 
 
 #: Largest term of a resampling ratio: the filter has 20 taps per unit of it.

@@ -78,7 +78,7 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
     if out.exists() and not out.is_dir():
         raise RailwatchError(f"--out {out} is a file: give a folder for the scan")
     rm = pipeline.load_recording_model(model)
-    layout = layout or rm.layout
+    layout = rm.layout_for(layout)
     paths = [Path(p) for p in recordings]
     if not paths:
         raise RailwatchError("no recordings to scan: give files, folders or globs")

@@ -61,8 +61,9 @@ def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], off
     [1.0, 5.0, 2.0, 2.0, 2.0, -inf]
     """
     n_steps = values.shape[1]
-    idx = (np.asarray(starts)[:, None] - offset + np.arange(n_steps)).ravel()  # (K·T,)
-    np.maximum.at(acc, idx, values.reshape(len(idx), *values.shape[2:]))
+    for w, start in enumerate(np.asarray(starts).tolist()):  # K slices: no scatter needed
+        s = start - offset
+        np.maximum(acc[s:s + n_steps], values[w], out=acc[s:s + n_steps])
 
 
 def assign_centres(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int,

@@ -87,9 +87,11 @@ class Run:
 
     @staticmethod
     def layout(fs: float = 2000.0, with_position: bool = True) -> Layout:
-        """The layout of :meth:`columns` written to a file."""
+        """The layout of :meth:`columns` written to a file: the benchmark's scale (a defect
+        lasts 0.01-0.2 s, twenty times a real one)."""
         return Layout(fs=fs, channels=CHANNELS, groups=CHANNEL_GROUPS, time="time",
-                      speed="speed", position="position" if with_position else None)
+                      speed="speed", position="position" if with_position else None,
+                      scale="benchmark")
 
 
 def synthesize_run(

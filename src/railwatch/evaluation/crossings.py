@@ -1,0 +1,135 @@
+"""Events and map places against what a vehicle really crossed.
+
+A recording's truth is a table of **crossings** (``passNN.defects.csv`` and ``.features.csv`` of
+``railwatch simulate``): when the sensors reached each item (``time_s``), how long they took
+to cross it (``duration_s``), at what speed (``speed_ms``). :func:`score_events` matches a
+pass's events to them: an event finds a defect when it overlaps the sensors' crossing (within
+``tol_s``). The coach's other wheelsets cross the same item later (by their distance behind
+the sensors over the speed), and an item that is not a defect (a turnout, a transition)
+answers too: such events are **explained**, counted apart from the defects found; the rest are
+**false**.
+
+:func:`score_places` does the same for a map's places along the track: a place within
+``tolerance_m`` of a defect's stretch finds it, a place on a feature is counted apart. With
+positions from odometry alone every pass, and so the map's frame, carries a common offset: the
+places sit on one side of the defects. That offset is the frame's error, not a miss: it is
+measured (the median of the signed distances of places to the defect they lie nearest, within
+``frame_search_m``) and reported apart, and recall is given both as the map says and with the
+frame's offset taken out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class EventScore:
+    """A pass's events against its crossings."""
+
+    found: dict[int, bool]  # defect index -> an event overlapped the sensors' crossing
+    on_defects: int  # events that found a defect
+    explained: int  # events on another wheelset's crossing of a defect, or on a feature
+    false: int
+    minutes: float
+
+    @property
+    def false_per_minute(self) -> float:
+        return self.false / max(self.minutes, 1e-9)
+
+
+def _overlaps(starts: FloatArray, ends: FloatArray, t0: float, t1: float, tol: float
+              ) -> NDArray[np.bool_]:
+    return (starts - tol <= t1) & (ends + tol >= t0)
+
+
+def score_events(events: Sequence[dict[str, Any]], defects: Sequence[dict[str, Any]],
+                 features: Sequence[dict[str, Any]], minutes: float,
+                 echo_offsets_m: Sequence[float] = (), tol_s: float = 0.1) -> EventScore:
+    """Match ``events`` (``start_s``, ``end_s``) to the crossings of ``defects`` and
+    ``features`` (``defect``, ``time_s``, ``duration_s``, ``speed_ms``; module docstring).
+    ``echo_offsets_m``: how far behind the sensors the coach's other wheelsets run."""
+    starts = np.array([float(e["start_s"]) for e in events], dtype=float)
+    ends = np.array([float(e["end_s"]) for e in events], dtype=float)
+    hit = np.zeros(len(events), dtype=bool)
+    explained = np.zeros(len(events), dtype=bool)
+    found: dict[int, bool] = {}
+    for rows, is_defect in ((defects, True), (features, False)):
+        for r in rows:
+            t0 = float(r["time_s"])
+            t1 = t0 + float(r["duration_s"])
+            m = _overlaps(starts, ends, t0, t1, tol_s)
+            if is_defect:
+                found[int(r["defect"])] = bool(m.any())
+                hit |= m
+            else:
+                explained |= m
+            v = float(r["speed_ms"])
+            for off in echo_offsets_m:
+                explained |= _overlaps(starts, ends, t0 + off / v, t1 + off / v, tol_s)
+    explained &= ~hit
+    return EventScore(found=found, on_defects=int(hit.sum()), explained=int(explained.sum()),
+                      false=int((~hit & ~explained).sum()), minutes=minutes)
+
+
+@dataclass
+class PlaceScore:
+    """A map's places against the items along the track."""
+
+    found: dict[int, bool]  # defect index -> a place within tolerance (after the frame's shift)
+    found_as_mapped: dict[int, bool]  # the same, the places where the map put them
+    on_features: int
+    false: int
+    km: float
+    frame_offset_m: float  # the places' common offset from the defects (NaN: none matched)
+    offsets_m: list[float] = field(default_factory=list)  # each found defect's place - defect
+
+    @property
+    def false_per_km(self) -> float:
+        return self.false / max(self.km, 1e-9)
+
+
+def score_places(positions: Sequence[float], defects: Sequence[dict[str, Any]],
+                 features: Sequence[dict[str, Any]], km: float, tolerance_m: float = 3.0,
+                 frame_search_m: float = 20.0) -> PlaceScore:
+    """Places (m along the track) against the defects and features (``defect``,
+    ``position_m``, ``length_m``) of a track (module docstring)."""
+    at = np.asarray(positions, dtype=float)
+
+    def signed(rows: Sequence[dict[str, Any]]) -> FloatArray:
+        """(items, places): the place's signed distance from each item's stretch."""
+        if not len(rows) or not len(at):
+            return np.full((len(rows), len(at)), np.inf)
+        start = np.array([float(r["position_m"]) for r in rows])[:, None]
+        end = start + np.array([float(r.get("length_m") or 0.0) for r in rows])[:, None]
+        return np.where(at[None] < start, at[None] - start,
+                        np.where(at[None] > end, at[None] - end, 0.0))
+
+    d_def, d_feat = signed(defects), signed(features)
+    nearest = np.abs(d_def).argmin(axis=0) if len(defects) else np.zeros(0, int)
+    near = d_def[nearest, np.arange(len(at))] if len(defects) else np.zeros(0)
+    close = np.abs(near) <= frame_search_m
+    frame = float(np.median(near[close])) if close.any() else math.nan
+    shift = 0.0 if math.isnan(frame) else frame
+    on_def = np.abs(d_def - shift) <= tolerance_m  # (defects, places)
+    found_raw = [bool((np.abs(d_def[i]) <= tolerance_m).any()) for i in range(len(defects))]
+    found = [bool(on_def[i].any()) for i in range(len(defects))]
+    on_feat = (np.abs(d_feat - shift) <= tolerance_m).any(axis=0) if len(features) else \
+        np.zeros(len(at), dtype=bool)
+    matched = on_def.any(axis=0) if len(defects) else np.zeros(len(at), dtype=bool)
+    index = [int(r["defect"]) for r in defects]
+    offsets = [float(d_def[i][on_def[i]][np.abs(d_def[i][on_def[i]]).argmin()])
+               for i in range(len(defects)) if found[i]]
+    return PlaceScore(found=dict(zip(index, found, strict=True)),
+                      found_as_mapped=dict(zip(index, found_raw, strict=True)),
+                      on_features=int((on_feat & ~matched).sum()),
+                      false=int((~matched & ~on_feat).sum()), km=km, frame_offset_m=frame,
+                      offsets_m=offsets)
