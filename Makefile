@@ -12,7 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-track-map-loss bench-track-map-fusion bench-track-map-frame bench-track-map-sides bench-matched-filter-ridge bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
+.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-track-map-loss bench-track-map-fusion bench-track-map-frame bench-track-map-sides bench-physics bench-matched-filter-ridge bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
 	bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
@@ -78,6 +78,9 @@ bench-track-map-frame: $(STAMP)  ## the fused map's frame and the check of the a
 
 bench-track-map-sides: $(STAMP)  ## what the fused map sums over the passes: the sides of the vehicle, 8 development tracks (~15 min, after bench-track-map-frame and track_map_wheel.py)
 	$(BIN)/python benchmarks/track_map_sides.py --work runs/bench-track-map
+
+bench-physics: $(STAMP)  ## physics tracks at field scale: one pass, the map, POD, beside the oracle (~40 min)
+	$(BIN)/python benchmarks/physics.py --work runs/physics
 
 bench-matched-filter-ridge: $(STAMP)  ## the matched filter's ridge on benchmark windows and on windows made unlike ours (~5 min)
 	$(BIN)/python benchmarks/matched_filter_ridge.py

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from railwatch.evaluation.crossings import score_events, score_places
@@ -31,15 +32,15 @@ def test_events_find_defects_and_echoes_and_features_are_apart() -> None:
 
 
 def test_places_find_defects_apart_from_features_and_measure_the_frame() -> None:
-    defects = [{"defect": i, "position_m": x, "length_m": 0.05}
-               for i, x in enumerate((100.0, 500.0, 900.0))]
-    features = [{"defect": 0, "position_m": 700.0, "length_m": 0.4}]
+    defects = np.array([[x, x + 0.05] for x in (100.0, 500.0, 900.0)])
+    features = np.array([[700.0, 700.4]])
     # Every place 4 m past its item (a common odometry offset), and one place on nothing.
-    s = score_places([104.0, 504.05, 904.0, 704.2, 300.0], defects, features, km=1.0,
-                     tolerance_m=3.0)
-    assert s.frame_offset_m == pytest.approx(4.0, abs=0.05)
-    assert s.found == {0: True, 1: True, 2: True}
-    assert s.found_as_mapped == {0: False, 1: False, 2: False}
+    places = [104.0, 504.05, 904.0, 704.2, 300.0]
+    mapped = score_places(places, defects, features, km=1.0, tolerance_m=3.0)
+    assert mapped.frame_offset_m == pytest.approx(4.0, abs=0.05)
+    assert not mapped.found.any() and (mapped.on_features, mapped.false) == (0, 5)
+    s = score_places(places, defects, features, km=1.0, tolerance_m=3.0, remove_frame=True)
+    assert s.found.all() and s.offsets_m == pytest.approx([4.0, 4.0, 4.0], abs=0.05)
     assert (s.on_features, s.false, s.false_per_km) == (1, 1, 1.0)
     empty = score_places([], defects, features, km=1.0)
-    assert math.isnan(empty.frame_offset_m) and not any(empty.found.values())
+    assert math.isnan(empty.frame_offset_m) and not empty.found.any()

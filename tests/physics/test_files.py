@@ -37,8 +37,14 @@ def test_simulate_writes_passes_twins_and_truth(tmp_path: Path, capsys) -> None:
                                                       "corrugation"}
         starts = {round(float(r["position_m"]), 3) for r in rows}
         assert starts <= {round(float(s), 3) for s in truth[:, 0]}
-        # The odometry's position is within a few metres of where the defect is.
+        # The twin's position is the true one; the odometry's is within a few metres of it.
+        import pandas as pd
+
+        twin_cols = pd.read_csv(out / "twins" / f"{name}.csv")
         for r in rows:
+            centre = float(r["position_m"]) + float(r["length_m"]) / 2
+            at = np.interp(float(r["center_s"]), twin_cols["time"], twin_cols["position"])
+            assert at == pytest.approx(centre, abs=0.05)
             assert abs(float(r["recorded_m"]) - float(r["position_m"])) < 10
             assert 15 <= float(r["speed_ms"]) <= 25
             assert r["channel"] in ("axle_left", "axle_right")

@@ -4,6 +4,7 @@ on Ray) and ``track-map`` (events of repeated passes -> confirmed locations)."""
 from __future__ import annotations
 
 import glob
+import math
 from pathlib import Path
 
 import click
@@ -188,10 +189,18 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
             f"{len(locations)} places, {len(reported)} reported ({rule})")
     if truth_m is not None:
+        assert truth is not None
         lo, hi = tm.covered_range(passes)
         covered = tm.on_stretch(truth_m, lo, hi)
-        s = tm.score_locations(reported, covered, hi - lo, tolerance_m)
+        beside = truth.with_name("track.features.csv")  # simulate's features: not defects
+        features = tm.read_truth(beside) if beside.is_file() and beside != truth else None
+        s = tm.score_locations(reported, covered, hi - lo, tolerance_m, features)
         line += (f"; against the {len(covered)} defects of {truth.name} on the covered "
                  f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "
                  f"±{tolerance_m:g} m, {s['false_per_km']:.2f} false locations per km")
+        if features is not None:
+            line += f" ({s['on_features']:.0f} more on the features of {beside.name})"
+        if not math.isnan(s["frame_offset_m"]):
+            line += (f"; the places sit {s['frame_offset_m']:+.1f} m from the defects in the "
+                     "median (the map's frame)")
     info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))

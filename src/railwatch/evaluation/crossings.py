@@ -82,14 +82,13 @@ def score_events(events: Sequence[dict[str, Any]], defects: Sequence[dict[str, A
 
 @dataclass
 class PlaceScore:
-    """A map's places against the items along the track."""
+    """A map's places against the stretches of the defects and features along the track."""
 
-    found: dict[int, bool]  # defect index -> a place within tolerance (after the frame's shift)
-    found_as_mapped: dict[int, bool]  # the same, the places where the map put them
-    on_features: int
+    found: NDArray[np.bool_]  # per defect: a place within tolerance
+    on_features: int  # places on a feature, not on a defect
     false: int
     km: float
-    frame_offset_m: float  # the places' common offset from the defects (NaN: none matched)
+    frame_offset_m: float  # the places' common offset from the defects (NaN: none near one)
     offsets_m: list[float] = field(default_factory=list)  # each found defect's place - defect
 
     @property
@@ -97,39 +96,34 @@ class PlaceScore:
         return self.false / max(self.km, 1e-9)
 
 
-def score_places(positions: Sequence[float], defects: Sequence[dict[str, Any]],
-                 features: Sequence[dict[str, Any]], km: float, tolerance_m: float = 3.0,
-                 frame_search_m: float = 20.0) -> PlaceScore:
-    """Places (m along the track) against the defects and features (``defect``,
-    ``position_m``, ``length_m``) of a track (module docstring)."""
-    at = np.asarray(positions, dtype=float)
+def _signed(at: FloatArray, stretches: FloatArray) -> FloatArray:
+    """(stretches, places): each place's signed distance from each stretch (0 inside)."""
+    start, end = stretches[:, :1], stretches[:, 1:]
+    return np.where(at[None] < start, at[None] - start,
+                    np.where(at[None] > end, at[None] - end, 0.0))
 
-    def signed(rows: Sequence[dict[str, Any]]) -> FloatArray:
-        """(items, places): the place's signed distance from each item's stretch."""
-        if not len(rows) or not len(at):
-            return np.full((len(rows), len(at)), np.inf)
-        start = np.array([float(r["position_m"]) for r in rows])[:, None]
-        end = start + np.array([float(r.get("length_m") or 0.0) for r in rows])[:, None]
-        return np.where(at[None] < start, at[None] - start,
-                        np.where(at[None] > end, at[None] - end, 0.0))
 
-    d_def, d_feat = signed(defects), signed(features)
-    nearest = np.abs(d_def).argmin(axis=0) if len(defects) else np.zeros(0, int)
-    near = d_def[nearest, np.arange(len(at))] if len(defects) else np.zeros(0)
-    close = np.abs(near) <= frame_search_m
-    frame = float(np.median(near[close])) if close.any() else math.nan
-    shift = 0.0 if math.isnan(frame) else frame
+def score_places(positions: Sequence[float] | FloatArray, defects: FloatArray,
+                 features: FloatArray | None, km: float, tolerance_m: float = 3.0,
+                 remove_frame: bool = False, frame_search_m: float = 20.0) -> PlaceScore:
+    """Places (m along the track) against the defects' and features' stretches ((n, 2) start
+    and end, m) of a track (module docstring): where the map put them, or with the frame's
+    common offset removed (``remove_frame``)."""
+    at = np.asarray(positions, dtype=float).reshape(-1)
+    d_def = _signed(at, np.asarray(defects, dtype=float).reshape(-1, 2))
+    d_feat = _signed(at, np.asarray(features if features is not None else np.zeros((0, 2)),
+                                    dtype=float).reshape(-1, 2))
+    near = np.abs(d_def) <= frame_search_m
+    nearest = np.take_along_axis(d_def, np.abs(d_def).argmin(axis=0)[None], axis=0)[0] \
+        if len(d_def) else np.zeros(len(at))
+    frame = float(np.median(nearest[near.any(axis=0)])) if near.any() else math.nan
+    shift = frame if remove_frame and not math.isnan(frame) else 0.0
     on_def = np.abs(d_def - shift) <= tolerance_m  # (defects, places)
-    found_raw = [bool((np.abs(d_def[i]) <= tolerance_m).any()) for i in range(len(defects))]
-    found = [bool(on_def[i].any()) for i in range(len(defects))]
-    on_feat = (np.abs(d_feat - shift) <= tolerance_m).any(axis=0) if len(features) else \
-        np.zeros(len(at), dtype=bool)
-    matched = on_def.any(axis=0) if len(defects) else np.zeros(len(at), dtype=bool)
-    index = [int(r["defect"]) for r in defects]
-    offsets = [float(d_def[i][on_def[i]][np.abs(d_def[i][on_def[i]]).argmin()])
-               for i in range(len(defects)) if found[i]]
-    return PlaceScore(found=dict(zip(index, found, strict=True)),
-                      found_as_mapped=dict(zip(index, found_raw, strict=True)),
-                      on_features=int((on_feat & ~matched).sum()),
+    matched = on_def.any(axis=0)
+    on_feat = (np.abs(d_feat - shift) <= tolerance_m).any(axis=0) & ~matched
+    found = on_def.any(axis=1)
+    offsets = [float(row[hit][np.abs(row[hit]).argmin()])
+               for row, hit in zip(d_def, on_def, strict=True) if hit.any()]
+    return PlaceScore(found=found, on_features=int(on_feat.sum()),
                       false=int((~matched & ~on_feat).sum()), km=km, frame_offset_m=frame,
                       offsets_m=offsets)

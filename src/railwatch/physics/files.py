@@ -9,8 +9,9 @@ what only a physics world can give:
 ``passNN.defects.csv``      when and where pass NN's sensors crossed each defect, at what speed,
                             and which axle-box channel ran on its rail
 ``passNN.features.csv``     the same for the features (turnouts, transitions, level crossings)
-``twins/passNN.<format>``   pass NN's clean twin: the same pass without the defects and the
-                            sensor noise (same columns)
+``twins/passNN.<format>``   pass NN's clean twin: the same pass without its defects, its
+                            sensor noise and its odometry's error (same columns; the position
+                            is the true one)
 ``track.features.csv``      the features along the track
 ``physics.json``            every setting (vehicle, track, spectra, sensors, each pass's
                             direction and speed range), the sensor noise per channel, and per
@@ -24,12 +25,14 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
@@ -38,9 +41,30 @@ from railwatch.physics.features import ITEM_FIELDS
 from railwatch.physics.passes import MIN_SIM_RATE, PassPlan, PhysicsPass, simulate_pass
 from railwatch.physics.vehicle import CHANNELS, GROUPS
 from railwatch.physics.world import PhysicsTrack, World, build_track
-from railwatch.recordings.layout import Layout, layout_toml
-from railwatch.recordings.readers import FORMATS, write_recording
+from railwatch.recordings.layout import Layout, layout_toml, load_layout
+from railwatch.recordings.readers import FORMATS, Recording, write_recording
 from railwatch.synthetic.track import Odometry, recorded_position
+
+
+@dataclass(frozen=True)
+class Positioning:
+    """Where a recording says the vehicle was: each pass's own odometry errors (its start's
+    offset, its scale error, a random walk), and the errors all passes of one vehicle share (a
+    common offset of the reference its odometer is set by, m std; a common scale error of its
+    wheel's worn radius, std), drawn once per folder."""
+
+    odometry: Odometry = field(default_factory=Odometry)
+    common_offset_m: float = 0.0
+    common_drift: float = 0.0
+
+
+#: An odometer alone: a start 1 m off, the pass's scale 0.05 % off, a walk of 0.3 m per √km,
+#: and, common to every pass, a reference 2 m off and a wheel radius 0.1 % off (wheel wear).
+ODOMETRY_ALONE = Positioning(Odometry(1.0, 0.0005, 0.3), common_offset_m=2.0, common_drift=0.001)
+#: GNSS-aided: a start 1 m off, the scale 0.01 % off, a walk of 0.1 m per √km, nothing common.
+GNSS_AIDED = Positioning(Odometry(1.0, 0.0001, 0.1))
+
+FloatArray = NDArray[np.float64]
 
 #: Columns of a pass's crossings tables (passNN.defects.csv, passNN.features.csv).
 CROSSING_FIELDS = ("defect", "kind", "time_s", "duration_s", "center_s", "position_m",
@@ -54,14 +78,14 @@ def layout(fs: float) -> Layout:
 
 
 def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: int = 0,
-                plan: PassPlan | None = None, odometry: Odometry | None = None,
+                plan: PassPlan | None = None, positioning: Positioning = ODOMETRY_ALONE,
                 suffix: str = ".parquet",
                 progress: Callable[[int], Any] | None = None) -> tuple[PhysicsTrack, list[Path]]:
     """Build ``world``'s track from ``seed`` and simulate ``passes`` passes over it into the
     folder ``out`` (module docstring). Pass ``i`` (from 0) runs along increasing position when
     ``i`` is even and back when odd, each with its own seed (``seed · 1000 + i + 1``), speed
-    profile, start and odometry error; ``plan`` gives the rest (its direction is ignored).
-    Returns the track and the recordings' paths."""
+    profile, start and odometry error (``positioning``); ``plan`` gives the rest (its direction
+    is ignored). Returns the track and the recordings' paths."""
     if suffix not in FORMATS:
         raise RailwatchError(f"--format {suffix.lstrip('.')}: use csv, parquet, h5 or mat")
     if passes < 1:
@@ -69,7 +93,6 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     plan = plan or PassPlan()
     world.check()
     plan.check()
-    odometry = odometry or Odometry()
     out = Path(out)
     (out / "twins").mkdir(parents=True, exist_ok=True)
     track = build_track(world, seed)
@@ -84,7 +107,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
         p = simulate_pass(track, PassPlan(direction, plan.push_pull, plan.speed_ms, plan.fs),
                           pass_seed, coupling)
         name = f"pass{i + 1:02d}"
-        _record_positions(p, direction, odometry, pass_seed)
+        _record_positions(p, positioning, pass_seed, seed)
         for rows, kind in ((p.crossings, "defects"), (p.features, "features")):
             atomic_csv(out / f"{name}.{kind}.csv", CROSSING_FIELDS, rows)
         write_recording(out / "twins" / f"{name}{suffix}", p.twin)
@@ -99,7 +122,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
             progress(1)
     atomic_csv(out / "track.features.csv", ITEM_FIELDS, [it.row() for it in track.features])
     info = {"seed": seed, "passes": summaries, "fs": plan.fs, "speed_ms": list(plan.speed_ms),
-            "push_pull": plan.push_pull, "odometry": asdict(odometry),
+            "push_pull": plan.push_pull, "positioning": asdict(positioning),
             "sensor_noise_ms2": dict(zip(CHANNELS, world.sensors.noise().tolist(), strict=True)),
             "world": world.to_dict(), "docs": "docs/physics.md"}
     with atomic_path(out / "physics.json") as tmp:
@@ -108,18 +131,79 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     return track, paths
 
 
-def _record_positions(p: PhysicsPass, direction: int, odometry: Odometry, seed: int) -> None:
-    """Replace the pass's (and its twin's) true positions by the odometry's, and give each
-    crossing the recorded position of its centre."""
-    true = p.columns["position"]
+def recorded(true: FloatArray, positioning: Positioning, seed: int, folder_seed: int
+             ) -> FloatArray:
+    """The positions a pass records (m) where it truly was at ``true``: its own errors drawn
+    from ``seed``, those every pass shares from ``folder_seed``."""
     travel = np.abs(true - true[0])
-    recorded = recorded_position(np.random.default_rng([seed, 209]), float(true[0]), travel,
-                                 direction, odometry)
-    p.columns["position"] = recorded
-    p.twin["position"] = recorded
+    direction = 1 if true[-1] >= true[0] else -1
+    common = np.random.default_rng([folder_seed, 210])
+    offset = float(common.normal(0.0, positioning.common_offset_m))
+    scale = float(common.normal(0.0, positioning.common_drift))
+    own = recorded_position(np.random.default_rng([seed, 209]), float(true[0]), travel,
+                            direction, positioning.odometry)
+    return own + offset + (1 if positioning.odometry.relative else direction) * scale * travel
+
+
+def _record_positions(p: PhysicsPass, positioning: Positioning, seed: int,
+                      folder_seed: int) -> None:
+    """Replace the pass's true positions by the recorded ones (its twin keeps the true ones),
+    and give each crossing the recorded position of its centre."""
+    p.columns["position"] = recorded(p.columns["position"], positioning, seed, folder_seed)
     time = p.columns["time"]
     for row in [*p.crossings, *p.features]:
-        row["recorded_m"] = round(float(np.interp(row["center_s"], time, recorded)), 4)
+        row["recorded_m"] = round(float(np.interp(row["center_s"], time,
+                                                  p.columns["position"])), 4)
+
+
+def reposition(folder: str | os.PathLike[str], out: str | os.PathLike[str],
+               positioning: Positioning) -> Path:
+    """The passes of a simulated ``folder`` positioned by ``positioning`` instead, into ``out``
+    (each pass's own errors and the common ones drawn again; recordings rewritten, the twins
+    linked): the same pass GNSS-aided and with an odometer alone."""
+    import pandas as pd
+
+    folder, out = Path(folder), Path(out)
+    info = json.loads((folder / "physics.json").read_text())
+    layout = load_layout(folder / "layout.toml")
+    (out / "twins").mkdir(parents=True, exist_ok=True)
+    for name in ("layout.toml", "track.features.csv"):
+        shutil.copy(folder / name, out / name)
+    for entry in info["passes"]:
+        name, seed = entry["pass"], int(entry["seed"])
+        path = next(p for p in folder.glob(f"{name}.*") if p.suffix.lower() in FORMATS
+                    and not p.name.endswith((".defects.csv", ".features.csv")))
+        data = _read_columns(path, layout)
+        true = _read_columns(folder / "twins" / path.name, layout)["position"]
+        data["position"] = recorded(np.asarray(true, dtype=float), positioning, seed,
+                                    int(info["seed"]))
+        write_recording(out / path.name, data)
+        twin = out / "twins" / path.name
+        if not twin.exists():
+            twin.symlink_to((folder / "twins" / path.name).resolve())
+        for kind in ("defects", "features"):
+            rows = pd.read_csv(folder / f"{name}.{kind}.csv").to_dict("records")
+            for row in rows:
+                row["recorded_m"] = round(float(np.interp(row["center_s"], data["time"],
+                                                          data["position"])), 4)
+            atomic_csv(out / f"{name}.{kind}.csv", CROSSING_FIELDS, rows)
+    with atomic_path(out / "physics.json") as tmp:
+        tmp.write_text(json.dumps({**info, "positioning": asdict(positioning)}, indent=1)
+                       + "\n")
+    shutil.copy(folder / "track.defects.csv", out / "track.defects.csv")  # last
+    return out
+
+
+def _read_columns(path: Path, layout: Layout) -> dict[str, FloatArray]:
+    """Every column of a recording written by :func:`write_world`."""
+    chunks = list(Recording(path, layout).chunks())
+    data = np.concatenate([c.data for c in chunks])
+    cols: dict[str, FloatArray] = {
+        "time": np.concatenate([c.time for c in chunks]),
+        "speed": np.concatenate([c.speed for c in chunks]),
+        "position": np.concatenate([c.position for c in chunks])}
+    cols.update({c: data[:, i] for i, c in enumerate(CHANNELS)})
+    return cols
 
 
 def _plain(value: Any) -> Any:

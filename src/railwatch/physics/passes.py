@@ -195,7 +195,7 @@ def simulate_pass(track: PhysicsTrack, plan: PassPlan, seed: int,
     sigma = world.sensors.noise()
     noise = sigma[:, None] * np.random.default_rng([seed, 401]).standard_normal((6, n_rec))
     columns: dict[str, NDArray[Any]] = {"time": time, "speed": speed, "position": true}
-    twin: dict[str, NDArray[Any]] = dict(columns)
+    twin: dict[str, NDArray[Any]] = {**columns, "position": true.copy()}
     for i, name in enumerate(CHANNELS):
         columns[name] = (out[False][i, rec] + noise[i]).astype(np.float32)
         twin[name] = out[True][i, rec].astype(np.float32)

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
+from railwatch.evaluation.crossings import score_places
 from railwatch.recordings import fusion
 
 #: What a scan writes per recording beside its events (``<name>.scan.json``).
@@ -668,18 +669,16 @@ def on_stretch(truth: NDArray[np.float64], lo: float, hi: float) -> NDArray[np.f
 
 
 def score_locations(locations: list[Location], truth: NDArray[np.float64], length_m: float,
-                    tolerance_m: float = 2.0) -> dict[str, float]:
+                    tolerance_m: float = 2.0,
+                    features: NDArray[np.float64] | None = None) -> dict[str, float]:
     """Recall of the true defects (stretches ``(start, end)``, or positions) by ``locations``
-    (a location within ``tolerance_m`` of a defect's stretch finds it), and the locations near
-    no true defect per km of ``length_m``."""
-    at = np.array([loc.position_m for loc in locations], dtype=float)
+    (a location within ``tolerance_m`` of a defect's stretch finds it), the locations near no
+    true defect (nor, when given, a feature's stretch) per km of ``length_m``, the locations on
+    features, and the frame's offset (:func:`railwatch.evaluation.crossings.score_places`)."""
     truth = np.asarray(truth, dtype=float)
     truth = np.stack([truth, truth], axis=1) if truth.ndim == 1 else truth.reshape(-1, 2)
-    if len(at) and len(truth):
-        near = (at[None, :] >= truth[:, :1] - tolerance_m) & \
-            (at[None, :] <= truth[:, 1:] + tolerance_m)  # (defects, locations)
-    else:
-        near = np.zeros((len(truth), len(at)), dtype=bool)
-    return {"recall": float(near.any(axis=1).mean()) if len(truth) else math.nan,
-            "false_per_km": float((~near.any(axis=0)).sum()) / max(length_m / 1000.0, 1e-9),
-            "locations": float(len(at))}
+    s = score_places([loc.position_m for loc in locations], truth, features,
+                     length_m / 1000.0, tolerance_m)
+    return {"recall": float(s.found.mean()) if len(truth) else math.nan,
+            "false_per_km": s.false_per_km, "locations": float(len(locations)),
+            "on_features": float(s.on_features), "frame_offset_m": s.frame_offset_m}
