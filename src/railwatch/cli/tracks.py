@@ -202,5 +202,6 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
             line += f" ({s['on_features']:.0f} more on the features of {beside.name})"
         if not math.isnan(s["frame_offset_m"]):
             line += (f"; the places sit {s['frame_offset_m']:+.1f} m from the defects in the "
-                     "median (the map's frame)")
+                     f"median (the map's frame: odometry's common error), recall "
+                     f"{s['recall_frame']:.0%} with it taken out")
     info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))

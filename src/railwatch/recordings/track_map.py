@@ -674,11 +674,14 @@ def score_locations(locations: list[Location], truth: NDArray[np.float64], lengt
     """Recall of the true defects (stretches ``(start, end)``, or positions) by ``locations``
     (a location within ``tolerance_m`` of a defect's stretch finds it), the locations near no
     true defect (nor, when given, a feature's stretch) per km of ``length_m``, the locations on
-    features, and the frame's offset (:func:`railwatch.evaluation.crossings.score_places`)."""
+    features, the frame's offset and the recall with it taken out
+    (:func:`railwatch.evaluation.crossings.score_places`)."""
     truth = np.asarray(truth, dtype=float)
     truth = np.stack([truth, truth], axis=1) if truth.ndim == 1 else truth.reshape(-1, 2)
-    s = score_places([loc.position_m for loc in locations], truth, features,
-                     length_m / 1000.0, tolerance_m)
+    at = [loc.position_m for loc in locations]
+    s = score_places(at, truth, features, length_m / 1000.0, tolerance_m)
+    framed = score_places(at, truth, features, length_m / 1000.0, tolerance_m, remove_frame=True)
     return {"recall": float(s.found.mean()) if len(truth) else math.nan,
             "false_per_km": s.false_per_km, "locations": float(len(locations)),
-            "on_features": float(s.on_features), "frame_offset_m": s.frame_offset_m}
+            "on_features": float(s.on_features), "frame_offset_m": s.frame_offset_m,
+            "recall_frame": float(framed.found.mean()) if len(truth) else math.nan}
