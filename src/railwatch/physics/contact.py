@@ -58,11 +58,6 @@ class Hertz:
         """Linearised stiffness at the static load (N/m)."""
         return 1.5 * self.p0 / self.delta0
 
-    def force(self, delta: FloatArray | float) -> FloatArray:
-        """The true contact force (N) at a compression ``delta0 + delta``."""
-        total = np.maximum(self.delta0 + np.asarray(delta, dtype=float), 0.0)
-        return np.asarray((total / self.g) ** 1.5, dtype=float)
-
 
 @dataclass(frozen=True)
 class Surrogate:

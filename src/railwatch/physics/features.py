@@ -194,7 +194,7 @@ class Inventory:
     min_gap_m: float = 25.0
 
 
-def _count(rng: np.random.Generator, per_km: float, km: float) -> int:
+def _count(per_km: float, km: float) -> int:
     """Round(per_km · km), at least one where the rate is positive (a test track without any
     joint would not test joints)."""
     return max(1, int(round(per_km * km))) if per_km > 0 else 0
@@ -222,7 +222,7 @@ def place_items(length_m: float, inventory: Inventory,
                              "give a longer track or fewer items per km")
 
     features: list[Item] = []
-    for _ in range(_count(rng, inventory.bridges_per_km, km)):
+    for _ in range(_count(inventory.bridges_per_km, km)):
         deck = float(rng.uniform(20.0, 80.0))
         app = [float(rng.uniform(5.0, 15.0)) for _ in range(2)]
         start = put(app[0] + deck + app[1])
@@ -231,7 +231,7 @@ def place_items(length_m: float, inventory: Inventory,
             features.append(Item(0, "transition", pos, length, float(rng.uniform(2.0, 8.0)), 0,
                                  (("side", float(side)), ("deck_m", deck),
                                   ("stiffness", stiff))))
-    for _ in range(_count(rng, inventory.turnouts_per_km, km)):
+    for _ in range(_count(inventory.turnouts_per_km, km)):
         lead = float(rng.uniform(20.0, 30.0))
         sw_len, cr_len = float(rng.uniform(0.3, 0.6)), float(rng.uniform(0.3, 0.5))
         start = put(lead + cr_len)
@@ -239,13 +239,13 @@ def place_items(length_m: float, inventory: Inventory,
         features.append(Item(0, "switch", first, sw_len, float(rng.uniform(0.3, 1.0)), 0))
         features.append(Item(0, "crossing", second, cr_len, float(rng.uniform(1.0, 2.5)),
                              int(rng.integers(1, 3))))
-    for _ in range(_count(rng, inventory.level_crossings_per_km, km)):
+    for _ in range(_count(inventory.level_crossings_per_km, km)):
         length = float(rng.uniform(2.0, 5.0))
         features.append(Item(0, "level-crossing", put(length), length,
                              float(rng.uniform(1.0, 3.0)), 0))
 
     defects: list[Item] = []
-    for _ in range(_count(rng, inventory.squats_per_km, km)):
+    for _ in range(_count(inventory.squats_per_km, km)):
         # A squat grows in length and depth together: its length rises with the depth's
         # place in the log-uniform range, give or take a tenth of the length range.
         lo, hi = inventory.squat_depth_mm
@@ -254,26 +254,26 @@ def place_items(length_m: float, inventory: Inventory,
         short, long = inventory.squat_length_m
         length = float(np.clip(short + (long - short) * (u + rng.normal(0.0, 0.1)), short, long))
         defects.append(Item(0, "squat", put(length), length, depth, int(rng.integers(1, 3))))
-    for _ in range(_count(rng, inventory.joints_per_km, km)):
+    for _ in range(_count(inventory.joints_per_km, km)):
         length = float(rng.uniform(0.3, 1.0))
         defects.append(Item(0, "joint", put(length), length,
                             float(rng.uniform(*inventory.joint_depth_mm)),
                             int(rng.integers(1, 3)),
                             (("gap_mm", float(rng.uniform(5.0, 10.0))),
                              ("step_mm", float(rng.uniform(-0.3, 0.3))))))
-    for _ in range(_count(rng, inventory.welds_per_km, km)):
+    for _ in range(_count(inventory.welds_per_km, km)):
         length = float(rng.uniform(0.6, 1.2))
         depth = float(rng.uniform(*inventory.weld_depth_mm))
         defects.append(Item(0, "weld", put(length), length, depth, int(rng.integers(1, 3)),
                             (("crown_mm", float(rng.uniform(0.0, 0.5)) * depth),
                              ("crown_m", float(rng.uniform(0.05, 0.15))))))
-    for _ in range(_count(rng, inventory.steps_per_km, km)):
+    for _ in range(_count(inventory.steps_per_km, km)):
         gap_mm = float(rng.uniform(5.0, 30.0))
         length = gap_mm * 1e-3 + 3.0
         height = float(rng.uniform(*inventory.step_height_mm)) * float(rng.choice([-1.0, 1.0]))
         defects.append(Item(0, "step", put(length), length, height, int(rng.integers(1, 3)),
                             (("gap_mm", gap_mm),)))
-    for _ in range(_count(rng, inventory.corrugations_per_km, km)):
+    for _ in range(_count(inventory.corrugations_per_km, km)):
         length = float(rng.uniform(1.0, 5.0))
         defects.append(Item(0, "corrugation", put(length), length,
                             float(rng.uniform(*inventory.corrugation_depth_mm)),
