@@ -546,8 +546,8 @@ def made_differently(work: Path, out: Path) -> None:
              "with defaults (`train --detector matched-filter` on passes 1-2, `scan`, "
              "`track-map` of passes 3-7, odometry alone, ±5 m) on one 5-km track per world "
              "(seeds 300-303; the wheel-flat world twice, trained without and with the comb), "
-             "each made unlike the test tracks of [physics.md](physics.md) in one way. One pass: the share of the passes' crossings found; the map: of the "
-             "defects.\n",
+             "each made unlike the test tracks of [physics.md](physics.md) in one way. One "
+             "pass: the share of the passes' crossings found; the map: of the defects.\n",
              "| world | one pass: squats >= 0.5 mm | joints | steps | welds >= 0.3 mm | false "
              "per min | map of 5: squats >= 0.3 mm | joints | steps | welds >= 0.3 mm | "
              "unexplained per km |", "|---|---|---|---|---|---|---|---|---|---|---|"]
