@@ -14,7 +14,7 @@ import io
 import json
 import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -92,7 +92,9 @@ def median_speed(recordings: Sequence[Recording], every: int = 50) -> float | No
     for rec in recordings:
         if not (rec.layout.speed or rec.layout.position):
             continue
-        for chunk in rec.chunks():
+        lean = replace(rec.layout, channels=rec.layout.channels[:1],
+                       groups=rec.layout.groups[:1])  # read one channel, not all of them
+        for chunk in Recording(rec.path, lean).chunks():
             if chunk.speed is not None:
                 speeds.append(np.abs(chunk.speed[::every]))
             elif chunk.position is not None and len(chunk.position) > every:
