@@ -38,7 +38,7 @@ from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
 from railwatch.physics.dynamics import coupled
 from railwatch.physics.features import ITEM_FIELDS
-from railwatch.physics.passes import MIN_SIM_RATE, PassPlan, PhysicsPass, simulate_pass
+from railwatch.physics.passes import PassPlan, PhysicsPass, oversampling, simulate_pass
 from railwatch.physics.vehicle import CHANNELS, GROUPS
 from railwatch.physics.world import PhysicsTrack, World, build_track
 from railwatch.recordings.layout import Layout, layout_toml, load_layout
@@ -96,8 +96,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     out = Path(out)
     (out / "twins").mkdir(parents=True, exist_ok=True)
     track = build_track(world, seed)
-    q = max(2, int(np.ceil(MIN_SIM_RATE / plan.fs)))
-    coupling = coupled(world.vehicle, world.track, q * plan.fs / 2)
+    coupling = coupled(world.vehicle, world.track, oversampling(plan.fs) * plan.fs / 2)
     with atomic_path(out / "layout.toml") as tmp:
         tmp.write_text(layout_toml(layout(plan.fs)))
     paths, summaries = [], []

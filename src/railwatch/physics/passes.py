@@ -88,6 +88,12 @@ class PhysicsPass:
     peak_load: float
 
 
+def oversampling(fs: float) -> int:
+    """The internal rate's multiple of the recording's ``fs``: at least 2, and at least
+    :data:`MIN_SIM_RATE`."""
+    return max(2, int(np.ceil(MIN_SIM_RATE / fs)))
+
+
 def speed_profile(rng: np.random.Generator, distance_m: float,
                   speed_ms: tuple[float, float]) -> tuple[FloatArray, FloatArray]:
     """Speed against distance travelled: a new target speed every 0.5–1.5 km, drawn uniformly
@@ -112,7 +118,7 @@ def simulate_pass(track: PhysicsTrack, plan: PassPlan, seed: int,
     world = track.world
     vehicle = world.vehicle
     rng = np.random.default_rng([seed, 400])
-    q = max(2, int(np.ceil(MIN_SIM_RATE / plan.fs)))
+    q = oversampling(plan.fs)
     fs_sim = q * plan.fs
     coupling = coupling or coupled(vehicle, world.track, fs_sim / 2)
     if coupling.f_max < fs_sim / 2:

@@ -10,10 +10,10 @@ motion). The benchmark's recordings (``scale = "benchmark"``, ``generate-run``) 
 twenty times longer: the paper's ×20 scaling, which keeps sample counts, applies, and they are
 resampled to 100 Hz in 2-s windows, every channel scored (``Preparation()``).
 
-Resampling (``Preparation.rate``, or ``None`` to keep the file's rate) Resampling is by a
-rational factor ``up / down`` (2000 -> 100 Hz: 1/20; 2048 -> 100 Hz: 25/512), polyphase, behind a
-linear-phase low-pass FIR filter (Kaiser window, cut-off at 80 % of the new Nyquist frequency,
-about 80 dB stop-band), applied in a streaming form: the output is the same whatever the block
+Resampling (to ``Preparation.rate``; ``None`` keeps the file's rate) is by a rational factor
+``up / down`` (2000 -> 100 Hz: 1/20; 2048 -> 100 Hz: 25/512), polyphase, behind a linear-phase
+low-pass FIR filter (Kaiser window, cut-off at 80 % of the new Nyquist frequency, about 80 dB
+stop-band), applied in a streaming form: the output is the same whatever the block
 sizes the samples arrive in, and output sample k is the filtered signal at input time
 ``k · down / up`` (the filter's delay is compensated; the first and last samples are extended by
 repetition). Per-channel normalisation is the detector's own, fitted on the windows of the
@@ -129,8 +129,9 @@ def choose(groups: tuple[str, ...], scale: str, fs: float, median_speed: float |
         hop = hop_s or base.train_hop_s
         detect_hop = min(base.detect_hop_s, window)
         use = chosen_groups or present
-        reasons.append(f"benchmark scale (the layout's scale): resampled to {rate or fs:g} Hz, "
-                       f"{window:g}-s windows, every channel, as the paper's x20 scaling")
+        reasons.append("benchmark scale (the layout's scale), as the paper's x20 scaling: "
+                       + (f"resampled to {rate:g} Hz" if rate else f"the rate kept, {fs:g} Hz")
+                       + f", {window:g}-s windows, the {', '.join(use)} channels")
     else:
         rate = given
         if window_s:

@@ -246,7 +246,7 @@ def write_track(out: str | os.PathLike[str], passes: int, length_m: float = 10_0
 
 
 def recorded_position(rng: np.random.Generator, start: float, travel_m: NDArray[np.float64],
-              direction: int, odo: Odometry) -> NDArray[np.float64]:
+                      direction: int, odo: Odometry) -> NDArray[np.float64]:
     """The recorded position: start + offset error + direction · (1 + scale error) · travel +
     a random walk of ``walk_m`` per √km (relative odometry: the offset error + (1 + scale
     error) · travel + the walk)."""
