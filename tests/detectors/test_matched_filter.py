@@ -9,12 +9,14 @@ from sklearn.metrics import roc_auc_score
 
 from railwatch.detectors import create
 from railwatch.detectors.matched_filter import (
+    MatchedFilter,
     filter_correlate,
     noise_scale,
     prediction_error,
     robust_ar,
     template_norm,
 )
+from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import box_sums
 from railwatch.synthetic import generate
 
@@ -138,3 +140,12 @@ def test_ridge_keeps_the_predictor_stable_on_resampled_recordings() -> None:
 
     default = top_share(create("matched-filter").config.ridge)
     assert default >= 0.92 and default >= top_share(1e-6) + 0.08  # measured 0.96 against 0.82
+
+
+def test_field_scale_defaults_follow_the_rate_and_bad_lengths_are_one_line() -> None:
+    assert MatchedFilter.field_scale(2000.0) == {"order": 16, "energy_boxes": (8, 16, 32, 64)}
+    assert MatchedFilter.field_scale(5000.0)["order"] == 32  # at most 32 taps
+    assert MatchedFilter.field_scale(100.0)["order"] == 8  # at least the spec's
+    det = create("matched-filter", {"energy_boxes": "8,x"})
+    with pytest.raises(RailwatchError, match="energy_boxes must be box lengths"):
+        det.fit(np.zeros((4, 64, 1), dtype=np.float32))

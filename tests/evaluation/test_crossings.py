@@ -42,5 +42,10 @@ def test_places_find_defects_apart_from_features_and_measure_the_frame() -> None
     s = score_places(places, defects, features, km=1.0, tolerance_m=3.0, remove_frame=True)
     assert s.found.all() and s.offsets_m == pytest.approx([4.0, 4.0, 4.0], abs=0.05)
     assert (s.on_features, s.false, s.false_per_km) == (1, 1, 1.0)
+    # A 3-m step 1 m ahead of its place once the frame is removed: the place, 4 m on, lies
+    # inside the step's stretch as mapped, which is no reason to miss it.
+    step = np.vstack([defects, [[1500.0, 1503.0]]])
+    s = score_places([*places, 1503.0], step, features, km=1.0, remove_frame=True)
+    assert s.found.all()
     empty = score_places([], defects, features, km=1.0)
     assert math.isnan(empty.frame_offset_m) and not empty.found.any()

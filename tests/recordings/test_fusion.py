@@ -186,6 +186,33 @@ def test_fused_map_of_a_scan_folder(tmp_path: Path) -> None:
     assert out.read_text().splitlines()[0].split(",") == list(tm.MAP_FIELDS)
 
 
+def test_at_field_scale_a_place_needs_an_event(tmp_path: Path) -> None:
+    # A rail's texture: every pass scores higher at 2600 m, never above its event threshold.
+    defects, texture = np.array([500.0, 1800.0, 3300.0, 4400.0]), np.array([2600.0])
+    xs, scores = profiles(6, np.concatenate([defects, texture]), bump=4.0, seed=3)
+    scan_folder(tmp_path, xs, scores, defects)  # events at the defects only
+
+    def places(passes: list[tm.PassEvents], **kw: int) -> list[tm.Location]:
+        return tm.reported_fused(tm.fused_map(passes, **kw)[0], 0.1)
+
+    passes = tm.read_scan(tmp_path)
+    assert tm.min_events_for(passes) == 0  # a scan that says no scale: the benchmark's
+    assert any(abs(loc.position_m - 2600) < 2 and loc.passes_with_event == 0
+               for loc in places(passes))
+    for info_path in tmp_path.glob("*.scan.json"):
+        info = json.loads(info_path.read_text())
+        info_path.write_text(json.dumps({**info, "scale": "field"}))
+    passes = tm.read_scan(tmp_path)
+    assert tm.min_events_for(passes) == 1
+    shown = places(passes)
+    assert not any(abs(loc.position_m - 2600) < 2 for loc in shown)
+    assert tm.score_locations(shown, defects, LENGTH, 2.0)["recall"] == 1.0
+    assert all(loc.passes_with_event >= 1 for loc in shown)
+    assert any(abs(loc.position_m - 2600) < 2 for loc in places(passes, min_events=0))
+    with pytest.raises(RailwatchError, match="--min-events must be 0 or more"):
+        tm.fused_map(passes, min_events=-1)
+
+
 def test_a_scan_without_profiles_or_with_a_damaged_one(tmp_path: Path) -> None:
     defects = np.array([500.0])
     xs, scores = profiles(2, defects, seed=4)

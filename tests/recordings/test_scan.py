@@ -54,6 +54,7 @@ def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # typ
         info = json.loads((out / f"{p.stem}.scan.json").read_text())
         assert info["events"] == sum(r["recording"] == p.stem for r in rows)
         assert info["position_first_m"] is not None
+        assert info["scale"] == "benchmark"  # generate-run's runs: track-map's --min-events 0
         with np.load(out / f"{p.stem}.profile.npz", allow_pickle=False) as f:
             assert f["channel_score"].shape == (len(f["position_m"]), 6)
             assert list(f["groups"]) == ["axle", "axle", "bogie", "bogie", "body", "body"]

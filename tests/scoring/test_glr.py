@@ -71,3 +71,21 @@ def test_scan_takes_one_residual_per_family() -> None:
     spike_only = scan(g, fams[:1], norms[:1], counts[:1])
     box_only = scan(other, fams[1:], norms[1:], counts[1:])
     np.testing.assert_array_equal(mixed, np.maximum(spike_only, box_only))
+
+
+def test_energy_family_is_calibrated_on_noise_and_finds_a_ringing_burst() -> None:
+    from railwatch.scoring.glr import effective_energy_count, energy_z
+
+    lengths = (8, 16, 32)
+    m = effective_energy_count(200, lengths, 4000, 0.05, seed=0)
+    assert 10 < m < 200  # fewer independent tries than positions: boxes overlap
+    fresh = np.random.default_rng(1).standard_normal((4000, 200, 1))
+    p = -log10_familywise_p(energy_z(fresh, lengths).max(axis=(1, 2)), m)
+    assert 0.035 < np.mean(p > -np.log10(0.05)) < 0.065  # the calibration holds on new noise
+    # A burst ringing at a quarter of the rate: its box sums cancel, its energy does not.
+    w = np.random.default_rng(2).standard_normal((1, 200, 1))
+    w[0, 100:132, 0] += 2.5 * np.sin(np.pi / 2 * np.arange(32))
+    boxes = family_max(w, tuple(range(5, 21)), [np.sqrt(L) for L in range(5, 21)])
+    ze = energy_z(w, lengths)
+    assert ze[0, 100:132].max() > 6 and boxes[0].max() < 4.5
+    assert 100 <= int(np.argmax(ze[0, :, 0])) < 132

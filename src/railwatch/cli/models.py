@@ -108,7 +108,7 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
         raise RailwatchError("--wheel-comb works on recordings (it needs the distance "
                              "travelled): train with --recordings FILE... --layout LAYOUT")
     overrides = {"progress": obj["progress"], **read_overrides(config_file, settings)}
-    detector = create(name, overrides)
+    detector = create(name, overrides)  # unknown names and settings fail before any reading
     model_dir(out)
     started = time.perf_counter()
     if data is not None:
@@ -149,6 +149,16 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
     for reason in choice.reasons:
         info(reason)
+    if layout.scale == "field":
+        from railwatch.detectors.registry import class_for
+
+        fitted = class_for(name).field_scale(prep.output_rate(layout.fs))
+        mine = {k: v for k, v in fitted.items() if k not in overrides}
+        if mine:
+            info(f"field scale: {name} with " + ", ".join(
+                f"{k}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
+                for k, v in mine.items()) + " (--set overrides)")
+            detector = create(name, {**mine, **overrides})
     layout = layout.select(choice.groups)
     sources = [Recording(p, layout) for p in paths]
     total = sum(r.duration_s for r in sources)

@@ -104,7 +104,8 @@ reported ones and those just below), most evident first: rank, position_m (the m
 median of the passes' odometry), start_m, end_m, evidence (-log10 of the fused tail),
 false_per_km (how many places this strong passes without a repeating defect give per km: the
 map's own false-alarm estimate), passes_seen (passes whose score there, measured against its
-neighbourhood, is in the top 1 % of the pass), passes_covered, share, confidence (95 % lower
+neighbourhood, is in the top 1 % of the pass), passes_with_event, passes_covered, share,
+confidence (95 % lower
 bound of the share), median_score, channel (the rail, named by the channel over it on a pass
 up the map; with --sides group the channel most passes had highest there), group, kind_guess
 (spike-like or deviation-like, from the events' duration), first_seen, last_seen (recording
@@ -137,6 +138,10 @@ names).
                    "with the direction); keep: push-pull (they stay); group: each group's "
                    "highest channel (either); auto: swap or keep, the one under which the "
                    "passes agree most.")
+@click.option("--min-events", default="auto", show_default=True, metavar="N|auto",
+              help="fused: report a place only where at least N passes had an event. auto: 1 "
+                   "when the scanning model was trained at field scale (a rail's own texture "
+                   "agrees across passes below the event threshold), 0 at the benchmark's.")
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
               help="votes: report a place seen on at least this share of the passes that "
                    "covered it, and on 2 passes at least (one pass confirms nothing).")
@@ -145,8 +150,8 @@ names).
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
                    "false locations per km.")
 def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
-              tolerance_m: float, max_offset_m: float, sides: str, min_share: float,
-              truth: Path | None) -> None:
+              tolerance_m: float, max_offset_m: float, sides: str, min_events: str,
+              min_share: float, truth: Path | None) -> None:
     """Turn repeated passes over one line into ranked places on the track.
 
     \b
@@ -170,11 +175,19 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     truth_m = tm.read_truth(truth) if truth else None
     fused = None
     if method == "fused":
+        if min_events.strip().lower() == "auto":
+            need = tm.min_events_for(passes)
+        elif min_events.strip().isdigit():
+            need = int(min_events)
+        else:
+            raise RailwatchError(f"--min-events {min_events}: give a number of passes (0, 1, "
+                                 "...) or auto")
         locations, fused = tm.fused_map(passes, tolerance_m, max_offset_m or None,
-                                        sides=sides)
+                                        sides=sides, min_events=need)
         reported = tm.reported_fused(locations, false_per_km)
-        rule = (f"at most {false_per_km:g} such places per km by chance; sides: "
-                f"{fused.sides}" + (" (auto)" if sides == "auto" else ""))
+        rule = (f"at most {false_per_km:g} such places per km by chance"
+                + (f", an event on {need} pass{'es' if need > 1 else ''} at least" if need
+                   else "") + f"; sides: {fused.sides}" + (" (auto)" if sides == "auto" else ""))
     else:
         locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
         reported = tm.reported(locations, min_share, len(passes))

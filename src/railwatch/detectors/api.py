@@ -195,6 +195,13 @@ class Detector(ABC):
     scoring_modes: ClassVar[tuple[str, ...]] = ()
     registry_name: str = ""  # set by the registry (variants of one class differ here)
 
+    @classmethod
+    def field_scale(cls, fs: float) -> dict[str, Any]:
+        """Config defaults for recordings prepared at field scale at ``fs`` Hz (``railwatch
+        train`` applies them under the user's own settings): none unless a detector's design
+        is written in the benchmark's sample counts and needs more at a real rate."""
+        return {}
+
     @property
     def report_maps(self) -> bool:
         """Whether ``score(X, extras=True)`` adds maps that show how the score was made, for a

@@ -117,10 +117,15 @@ def score_places(positions: Sequence[float] | FloatArray, defects: FloatArray,
     nearest = np.take_along_axis(d_def, np.abs(d_def).argmin(axis=0)[None], axis=0)[0] \
         if len(d_def) else np.zeros(len(at))
     frame = float(np.median(nearest[near.any(axis=0)])) if near.any() else math.nan
-    shift = frame if remove_frame and not math.isnan(frame) else 0.0
-    on_def = np.abs(d_def - shift) <= tolerance_m  # (defects, places)
+    r_def, r_feat = d_def, d_feat
+    if remove_frame and not math.isnan(frame):  # the places moved, then measured again (a
+        # distance to a stretch is not the distance to where the place was less the shift)
+        r_def = _signed(at - frame, np.asarray(defects, dtype=float).reshape(-1, 2))
+        r_feat = _signed(at - frame, np.asarray(features if features is not None else
+                                                np.zeros((0, 2)), dtype=float).reshape(-1, 2))
+    on_def = np.abs(r_def) <= tolerance_m  # (defects, places)
     matched = on_def.any(axis=0)
-    on_feat = (np.abs(d_feat - shift) <= tolerance_m).any(axis=0) & ~matched
+    on_feat = (np.abs(r_feat) <= tolerance_m).any(axis=0) & ~matched
     found = on_def.any(axis=1)
     offsets = [float(row[hit][np.abs(row[hit]).argmin()])
                for row, hit in zip(d_def, on_def, strict=True) if hit.any()]

@@ -160,6 +160,7 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         "position_last_m": float(finite[-1]) if len(finite) else None,
         "profile": PROFILE_KIND,
         "wheel_turns_m": result.wheel_turns,
+        "scale": rm.layout.scale,  # the model's: track-map's --min-events follows it
     }
     arrays = {**profile.arrays(), "channels": np.array(lay.channels),
               "groups": np.array(lay.groups)}
