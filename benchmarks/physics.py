@@ -19,7 +19,8 @@ from odometry alone (the simulator's default: each pass's start 1 m off, its sca
 walk of 0.3 m per √km, and every pass sharing a 2-m offset and a 0.1 % scale error) and
 GNSS-aided (the same passes repositioned: 1 m, 0.01 %, 0.1 m per √km, nothing common): defects
 with a reported place
-(`track-map`'s default, at most 0.1 such places per km by chance) within ±3 m (GNSS-aided) or
+(`track-map`'s defaults: at most 0.1 such places per km by chance, an event on one of the passes
+at least) within ±3 m (GNSS-aided) or
 ±5 m (odometry alone), places on features apart, the frame's common offset apart; beside the
 oracle's map: a defect the oracle finds on at least two of the passes (one pass confirms
 nothing; on one pass, on that pass).
