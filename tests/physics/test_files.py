@@ -75,3 +75,23 @@ def test_impossible_settings_are_one_line_errors(tmp_path: Path, capsys, args,  
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
     assert not (out / "track.defects.csv").exists()
+
+
+def test_train_at_field_scale_sets_the_matched_filter_for_the_rate(tmp_path: Path,
+                                                                   capsys) -> None:  # type: ignore[no-untyped-def]
+    from railwatch.detectors import load_detector
+
+    out = tmp_path / "phys"
+    assert main(["-q", "simulate", "--out", str(out), "--passes", "1", "--track-km", "0.4",
+                 "--seed", "2"]) == 0
+    common = ["train", "--detector", "matched-filter", "--recordings",
+              str(out / "pass01.parquet"), "--layout", str(out / "layout.toml")]
+    assert main([*common, "--out", str(tmp_path / "m")]) == 0
+    assert "matched-filter with order=16, energy_boxes=8,16,32,64" in capsys.readouterr().err
+    cfg = load_detector(tmp_path / "m").config
+    assert cfg.order == 16 and cfg.energy_boxes == (8, 16, 32, 64)
+    # --set wins: the benchmark's matched filter on the same recording.
+    assert main([*common, "--out", str(tmp_path / "b"), "--set", "order=8",
+                 "--set", "energy_boxes="]) == 0
+    cfg = load_detector(tmp_path / "b").config
+    assert cfg.order == 8 and cfg.energy_boxes == ()

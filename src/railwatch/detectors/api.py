@@ -100,7 +100,8 @@ def _coerce(key: str, value: Any, default: Any) -> Any:
         if isinstance(default, float):
             return float(value)
         if isinstance(default, tuple):
-            items = value.split(",") if isinstance(value, str) else list(value)
+            items = [v for v in value.split(",") if v.strip()] if isinstance(value, str) \
+                else list(value)  # "" is the empty tuple
             inner = type(default[0]) if default else str
             return tuple(inner(v) for v in items)
         if isinstance(default, str):

@@ -95,6 +95,12 @@ class MatchedFilterConfig(DetectorConfig):
     null_windows: int = 10000  # Monte Carlo N(0, 1) windows calibrating each family
     null_alpha: float = 0.05  # tail level at which each family's calibration is exact
 
+    def __post_init__(self) -> None:
+        try:  # lengths given as text (--set, a saved model's JSON) become numbers
+            object.__setattr__(self, "energy_boxes", tuple(int(L) for L in self.energy_boxes))
+        except (TypeError, ValueError):
+            pass  # MatchedFilter._energy says what is wrong, when the detector is used
+
 
 # ----------------------------------------------------------------------------- the steps
 def robust_ar(x: F64, order: int, huber_k: float, iterations: int, ridge: float) -> F64:
