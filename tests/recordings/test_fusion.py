@@ -360,3 +360,17 @@ def test_track_map_names_its_sides_rule(tmp_path: Path, capsys) -> None:  # type
     code = main(["track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv"),
                  "--sides", "left"])
     assert code != 0 and "left" in capsys.readouterr().err
+
+
+def test_track_map_min_events_is_a_number_or_auto(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    from railwatch.cli import main
+
+    defects = np.array([1000.0, 3000.0])
+    xs, scores = profiles(3, defects, bump=4.0, seed=5)
+    scan_folder(tmp_path, xs, scores, defects)
+    out = ["track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv")]
+    assert main([*out, "--min-events", "2"]) == 0
+    assert "an event on 2 passes at least" in capsys.readouterr().err
+    assert main([*out, "--min-events", "two"]) != 0
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--min-events two: give a number" in err, err

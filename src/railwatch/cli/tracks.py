@@ -105,11 +105,10 @@ median of the passes' odometry), start_m, end_m, evidence (-log10 of the fused t
 false_per_km (how many places this strong passes without a repeating defect give per km: the
 map's own false-alarm estimate), passes_seen (passes whose score there, measured against its
 neighbourhood, is in the top 1 % of the pass), passes_with_event, passes_covered, share,
-confidence (95 % lower
-bound of the share), median_score, channel (the rail, named by the channel over it on a pass
-up the map; with --sides group the channel most passes had highest there), group, kind_guess
-(spike-like or deviation-like, from the events' duration), first_seen, last_seen (recording
-names).
+confidence (95 % lower bound of the share), median_score, channel (the rail, named by the
+channel over it on a pass up the map; with --sides group the channel most passes had highest
+there), group, kind_guess (spike-like or deviation-like, from the events' duration),
+first_seen, last_seen (recording names).
 \b
 --method votes ranks the places where events cluster by the share of passes with an event
 (evidence and false_per_km empty); it needs only the events.""")
