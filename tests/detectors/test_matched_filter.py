@@ -143,7 +143,8 @@ def test_ridge_keeps_the_predictor_stable_on_resampled_recordings() -> None:
 
 
 def test_field_scale_defaults_follow_the_rate_and_bad_lengths_are_one_line() -> None:
-    assert MatchedFilter.field_scale(2000.0) == {"order": 16, "energy_boxes": (8, 16, 32, 64)}
+    assert MatchedFilter.field_scale(2000.0) == {"order": 16, "energy_boxes": (8, 16, 32, 64),
+                                                 "change_point": False}
     assert MatchedFilter.field_scale(5000.0)["order"] == 32  # at most 32 taps
     assert MatchedFilter.field_scale(100.0)["order"] == 8  # at least the spec's
     det = create("matched-filter", {"energy_boxes": "8,x"})

@@ -87,11 +87,12 @@ def test_train_at_field_scale_sets_the_matched_filter_for_the_rate(tmp_path: Pat
     common = ["train", "--detector", "matched-filter", "--recordings",
               str(out / "pass01.parquet"), "--layout", str(out / "layout.toml")]
     assert main([*common, "--out", str(tmp_path / "m")]) == 0
-    assert "matched-filter with order=16, energy_boxes=8,16,32,64" in capsys.readouterr().err
+    assert ("matched-filter with order=16, energy_boxes=8,16,32,64, change_point=False"
+            in capsys.readouterr().err)
     cfg = load_detector(tmp_path / "m").config
-    assert cfg.order == 16 and cfg.energy_boxes == (8, 16, 32, 64)
+    assert cfg.order == 16 and cfg.energy_boxes == (8, 16, 32, 64) and not cfg.change_point
     # --set wins: the benchmark's matched filter on the same recording.
     assert main([*common, "--out", str(tmp_path / "b"), "--set", "order=8",
-                 "--set", "energy_boxes="]) == 0
+                 "--set", "energy_boxes=", "--set", "change_point=true"]) == 0
     cfg = load_detector(tmp_path / "b").config
-    assert cfg.order == 8 and cfg.energy_boxes == ()
+    assert cfg.order == 8 and cfg.energy_boxes == () and cfg.change_point
