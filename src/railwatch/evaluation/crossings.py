@@ -110,9 +110,10 @@ def score_places(positions: Sequence[float] | FloatArray, defects: FloatArray,
     and end, m) of a track (module docstring): where the map put them, or with the frame's
     common offset removed (``remove_frame``)."""
     at = np.asarray(positions, dtype=float).reshape(-1)
-    d_def = _signed(at, np.asarray(defects, dtype=float).reshape(-1, 2))
-    d_feat = _signed(at, np.asarray(features if features is not None else np.zeros((0, 2)),
-                                    dtype=float).reshape(-1, 2))
+    defects = np.asarray(defects, dtype=float).reshape(-1, 2)
+    features = np.asarray(features if features is not None else np.zeros((0, 2)),
+                          dtype=float).reshape(-1, 2)
+    d_def, d_feat = _signed(at, defects), _signed(at, features)
     near = np.abs(d_def) <= frame_search_m
     nearest = np.take_along_axis(d_def, np.abs(d_def).argmin(axis=0)[None], axis=0)[0] \
         if len(d_def) else np.zeros(len(at))
@@ -120,9 +121,7 @@ def score_places(positions: Sequence[float] | FloatArray, defects: FloatArray,
     r_def, r_feat = d_def, d_feat
     if remove_frame and not math.isnan(frame):  # the places moved, then measured again (a
         # distance to a stretch is not the distance to where the place was less the shift)
-        r_def = _signed(at - frame, np.asarray(defects, dtype=float).reshape(-1, 2))
-        r_feat = _signed(at - frame, np.asarray(features if features is not None else
-                                                np.zeros((0, 2)), dtype=float).reshape(-1, 2))
+        r_def, r_feat = _signed(at - frame, defects), _signed(at - frame, features)
     on_def = np.abs(r_def) <= tolerance_m  # (defects, places)
     matched = on_def.any(axis=0)
     on_feat = (np.abs(r_feat) <= tolerance_m).any(axis=0) & ~matched
