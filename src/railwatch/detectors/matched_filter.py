@@ -213,14 +213,12 @@ class MatchedFilter(Detector):
         return families(cfg.min_box, cfg.max_box)
 
     def _energy(self) -> Family:
-        """The energy family's lengths (samples), checked."""
-        try:
-            lengths = tuple(int(L) for L in self.config.energy_boxes)
-        except ValueError:
-            lengths = ()
-        if len(lengths) != len(self.config.energy_boxes) or any(L < 2 for L in lengths):
+        """The energy family's lengths (samples), checked (the config made numbers of them
+        where it could)."""
+        lengths = self.config.energy_boxes
+        if not all(isinstance(L, int) and L >= 2 for L in lengths):
             raise RailwatchError("energy_boxes must be box lengths of at least 2 samples, e.g. "
-                                 f"8,16,32,64; got {','.join(map(str, self.config.energy_boxes))}")
+                                 f"8,16,32,64; got {','.join(map(str, lengths))}")
         return lengths
 
     @classmethod
@@ -276,9 +274,10 @@ class MatchedFilter(Detector):
         cfg = self.config
         self.stats_["null_counts"] = effective_counts(
             self.n_steps_, self._families(), cfg.null_windows, cfg.null_alpha, cfg.seed)
-        if self._energy():
+        energy = self._energy()
+        if energy:
             self.stats_["energy_count"] = np.array([effective_energy_count(
-                self.n_steps_, self._energy(), cfg.null_windows, cfg.null_alpha, cfg.seed)])
+                self.n_steps_, energy, cfg.null_windows, cfg.null_alpha, cfg.seed)])
         peak = self.raw_scores(X).max(axis=1)  # (N, C): each window's largest score per channel
         median = np.median(peak, axis=0)
         mad = MAD_TO_STD * np.median(np.abs(peak - median), axis=0)

@@ -155,10 +155,15 @@ def effective_counts(
             continue
         zmax = np.max([np.abs(box_sums(noise, L)).max(axis=(1, 2)) / np.sqrt(L)
                        for L in fam if L <= n_steps], axis=0)  # (n_windows,)
-        z_alpha = np.quantile(zmax, 1.0 - alpha)
-        q = 2.0 * np.exp(log_ndtr(-z_alpha))
-        out[i] = np.log1p(-alpha) / np.log1p(-q)
+        out[i] = count_at(zmax, alpha)
     return out
+
+
+def count_at(zmax: NDArray[np.float64], alpha: float) -> float:
+    """The ``m`` that solves ``1 − (1 − q(z_α))^m = α`` at the ``1 − α`` quantile ``z_α`` of
+    window maxima ``zmax`` simulated under N(0, 1) noise."""
+    q = 2.0 * np.exp(log_ndtr(-np.quantile(zmax, 1.0 - alpha)))
+    return float(np.log1p(-alpha) / np.log1p(-q))
 
 
 def scale_counts(
@@ -269,6 +274,4 @@ def effective_energy_count(n_steps: int, lengths: Family, n_windows: int, alpha:
     zmax = np.concatenate([energy_z(rng.standard_normal((min(1000, n_windows - i), n_steps, 1)),
                                     lengths).max(axis=(1, 2))
                            for i in range(0, n_windows, 1000)])
-    z_alpha = np.quantile(zmax, 1.0 - alpha)
-    q = 2.0 * np.exp(log_ndtr(-z_alpha))
-    return float(np.log1p(-alpha) / np.log1p(-q))
+    return count_at(zmax, alpha)
