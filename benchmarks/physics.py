@@ -13,7 +13,7 @@ found (an event overlapping the sensor wheelset's crossing, within 0.1 s) by kin
 false events per minute (events on the coach's other wheelsets' crossings or on features are
 counted apart), beside the **oracle**: the oracle detector (a spike and 5-20-sample box GLR
 test) on each pass less its clean twin, divided by the sensor noise (it knows everything but
-the noise), its threshold at 0.6 windows per minute of pure sensor noise, as the model's.
+the noise), its threshold at 0.1 windows per minute of pure sensor noise, as the model's.
 2. **The map** from 1, 2, 5 and 10 passes (consecutive passes from pass 3 on), with positions
 from odometry alone (the simulator's default: each pass's start 1 m off, its scale 0.05 % off, a
 walk of 0.3 m per √km, and every pass sharing a 2-m offset and a 0.1 % scale error) and
@@ -136,10 +136,13 @@ def minutes(folder: Path, name: str) -> float:
 
 def oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
     """Events of the oracle on a pass: the oracle detector on the pass less its clean twin,
-    whitened by the sensor noise, windows as the field model's, its threshold at 0.6 windows
-    per minute of pure sensor noise. Kept in the track's folder (they do not depend on the
-    positions)."""
-    kept = folder.parent / folder.name.replace("-gnss", "") / f"{name}.oracle.json"
+    whitened by the sensor noise, windows as the field model's, its threshold at the
+    field-scale model's windows per minute of pure sensor noise. Kept in the track's folder
+    (they do not depend on the positions)."""
+    from railwatch.recordings.pipeline import EVENTS_PER_MINUTE
+
+    kept = folder.parent / folder.name.replace("-gnss", "") / \
+        f"{name}.oracle-{EVENTS_PER_MINUTE['field']:g}pm.json"
     if kept.exists():
         return list(json.loads(kept.read_text()))
     events = _oracle_events(folder, name)
@@ -177,12 +180,12 @@ def _oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
     merge_max(point, scores.point.astype(float), starts, 0)
     merge_max(channel, scores.channel.astype(float), starts, 0)
     # The oracle knows the noise: its threshold is the quantile of its scores on pure noise at
-    # 0.6 windows per minute (as the model's event threshold).
-    null = np.random.default_rng(0).standard_normal((4000, *wx.shape[1:]))
+    # the field scale's windows per minute (as the model's event threshold).
+    null = np.random.default_rng(0).standard_normal((12000, *wx.shape[1:]))
     null_scores = oracle.score(null, {"nuisance": np.zeros_like(null),
                                       "noise_std": np.ones_like(null)}).instance
-    threshold = float(np.quantile(null_scores,
-                                  1 - pipeline.EVENTS_PER_MINUTE * prep.window_s / 60))
+    threshold = float(np.quantile(null_scores, 1 - pipeline.EVENTS_PER_MINUTE["field"]
+                                              * prep.window_s / 60))
     tracker = EventTracker(threshold, int(0.5 * layout.fs), layout.channels, layout.groups)
     events = tracker.feed(point, channel, t, None, 1 / layout.fs) + tracker.close()
     return [{"start_s": e.start_s, "end_s": e.end_s} for e in events]

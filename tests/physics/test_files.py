@@ -96,3 +96,32 @@ def test_train_at_field_scale_sets_the_matched_filter_for_the_rate(tmp_path: Pat
                  "--set", "energy_boxes=", "--set", "change_point=true"]) == 0
     cfg = load_detector(tmp_path / "b").config
     assert cfg.order == 8 and cfg.energy_boxes == () and cfg.change_point
+    # The event threshold: 0.1 windows per minute of the training null at field scale.
+    window_s = json.loads((tmp_path / "m" / "recording.json").read_text())["preparation"][
+        "window_s"]
+    rules = {n: json.loads((tmp_path / n / "recording.json").read_text())["threshold_rule"]
+             for n in ("m", "b")}
+    assert rules["m"] == rules["b"] == f"gumbel_null(tail={round(0.1 * window_s / 60, 12):g})"
+    assert main([*common, "--out", str(tmp_path / "r"), "--events-per-minute", "2"]) == 0
+    rule = json.loads((tmp_path / "r" / "recording.json").read_text())["threshold_rule"]
+    assert rule == f"gumbel_null(tail={round(2 * window_s / 60, 12):g})"
+    assert load_detector(tmp_path / "r").threshold_ < load_detector(tmp_path / "m").threshold_
+
+
+@pytest.mark.parametrize("rate, message", [
+    ("0", "--events-per-minute must be positive"),
+    ("-1", "--events-per-minute must be positive"),
+    ("1000", "puts half of the"),
+])
+def test_an_impossible_event_rate_is_a_one_line_error(tmp_path: Path, capsys, rate,  # type: ignore[no-untyped-def]
+                                                      message) -> None:
+    out = tmp_path / "phys"
+    assert main(["-q", "simulate", "--out", str(out), "--passes", "1", "--track-km", "0.4",
+                 "--seed", "2"]) == 0
+    capsys.readouterr()
+    assert main(["train", "--detector", "matched-filter", "--recordings",
+                 str(out / "pass01.parquet"), "--layout", str(out / "layout.toml"),
+                 "--events-per-minute", rate, "--out", str(tmp_path / "m")]) != 0
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "m").exists()

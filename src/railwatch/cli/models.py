@@ -45,7 +45,9 @@ How they are prepared follows the layout's scale (docs/recordings.md):
       their defects are the benchmark's, twenty times longer (the paper's x20 scaling)
 --resample, --window, --hop and --groups override the choice, which train prints. Training
 uses no labels; the model folder keeps the layout of the scored channels, the preparation and
-an event threshold for 'railwatch detect'.
+an event threshold for 'railwatch detect': the level that normal recording would cross in 0.1
+windows per minute at field scale (0.6 at the benchmark's), by the training windows' null;
+--events-per-minute sets it.
 --wheel-comb takes out, before resampling, impulses that repeat at every turn of a wheel (flat
 or out-of-round wheels): each channel's turn is found in each recording (its cepstrum over
 distance; channels without a clear one are left alone) and every sample loses the mean of the
@@ -74,6 +76,10 @@ column; detect and scan then do the same to every recording.""")
 @click.option("--wheel-comb", is_flag=True,
               help="Comb out wheel-periodic impulses before resampling (recordings with a "
                    "position or speed column; see below).")
+@click.option("--events-per-minute", type=float, metavar="RATE",
+              help="The event threshold: windows per minute of normal recording that would "
+                   "cross it, by the training windows' null (recordings; default 0.1 at field "
+                   "scale, 0.6 at the benchmark's). detect and scan --threshold override it.")
 @click.option("--out", type=click.Path(path_type=Path), required=True,
               help="Model folder to write (replaced only when training succeeded).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path),
@@ -84,7 +90,7 @@ column; detect and scan then do the same to every recording.""")
 def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
           more_recordings: tuple[Path, ...], layout_file: Path | None, resample: str,
           window_s: float | None, hop_s: float | None, groups_text: str, wheel_comb: bool,
-          out: Path,
+          events_per_minute: float | None, out: Path,
           config_file: Path | None, settings: tuple[str, ...]) -> None:
     """Train a detector, without labels, on a window file or on recordings, and save it.
 
@@ -104,6 +110,9 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     if (data is None) == (not paths):
         raise RailwatchError("give either --data WINDOWS.npz or --recordings FILE... --layout "
                              "LAYOUT")
+    if events_per_minute is not None and data is not None:
+        raise RailwatchError("--events-per-minute sets the event threshold of recordings: "
+                             "train with --recordings FILE... --layout LAYOUT")
     if wheel_comb and data is not None:
         raise RailwatchError("--wheel-comb works on recordings (it needs the distance "
                              "travelled): train with --recordings FILE... --layout LAYOUT")
@@ -123,6 +132,8 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
         return
     from railwatch.recordings.layout import load_layout
     from railwatch.recordings.pipeline import (
+        EVENTS_PER_MINUTE,
+        event_threshold,
         fit_recording_model,
         median_speed,
         training_windows,
@@ -147,6 +158,9 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
                     hop_s=hop_s, chosen_groups=chosen, wheel_turns=2 if wheel_comb else 0)
     prep = choice.preparation
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
+    per_minute = EVENTS_PER_MINUTE[layout.scale] if events_per_minute is None \
+        else events_per_minute
+    rule = event_threshold(prep, per_minute)  # and on an impossible rate of events
     for reason in choice.reasons:
         info(reason)
     if layout.scale == "field":
@@ -168,9 +182,10 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     if obj["progress"]:
         info(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
              f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
-    threshold = fit_recording_model(detector, X, layout, prep, out)
+    threshold = fit_recording_model(detector, X, layout, prep, out, rule)
     info(f"trained {name} in {time.perf_counter() - started:.1f} s; event threshold "
-         f"{threshold:.4g}; saved to {out}")
+         f"{threshold:.4g} ({per_minute:g} windows per minute of the training recordings' "
+         f"null, --events-per-minute); saved to {out}")
 
 
 @click.command()
