@@ -24,10 +24,15 @@ at least) within ±3 m (GNSS-aided) or
 ±5 m (odometry alone), places on features apart, the frame's common offset apart; beside the
 oracle's map: a defect the oracle finds on at least two of the passes (one pass confirms
 nothing; on one pass, on that pass).
-3. **Probability of detection** (MIL-HDBK-1823A hit/miss): a logistic fit of found against log
+3. **What the track allows** (welds): the geometry bound (`railwatch.physics.bound`), the
+whitened matched filter on the rails' height itself, knowing the track's spectra but not its
+realisation, its level at 0.1 false places per km of clean tracks (seeds 1000-1019, without
+features); the share of welds it finds on 40 other tracks (seeds 1100-1139) and on the test
+tracks, each weld beside the map's result.
+4. **Probability of detection** (MIL-HDBK-1823A hit/miss): a logistic fit of found against log
 depth, per kind, for one pass (per speed band) and for the map from 1, 2, 5, 10 passes; a90
 and a90/95, the oracle's beside.
-4. **Speed**: `detect`'s real-time factor on one core on a 2 kHz six-channel test pass, and the
+5. **Speed**: `detect`'s real-time factor on one core on a 2 kHz six-channel test pass, and the
 time to simulate a 5-km pass.
 
 Run: `make bench-physics` (about 40 minutes on 2 cores; every step is kept in --work and reused).
@@ -454,6 +459,7 @@ def main() -> None:
                 f"{np.mean([r['false_per_km'] for r in rows]):.2f} | "
                 f"{np.median(frame) if frame else float('nan'):+.1f} m |")
         lines.append("")
+    lines += track_allows(args.work, folders["GNSS-aided"], json_out["maps"]["GNSS-aided"])
     # ---- POD
     lines += ["## Probability of detection (hit/miss, MIL-HDBK-1823A)\n",
               "a90 / a90/95 in mm of depth (steps: of height; corrugation: peak to trough); "
@@ -522,6 +528,112 @@ def main() -> None:
     (args.work / "physics.json").write_text(json.dumps(json_out, default=str))
     draw_pod(pods, args.out.with_name("physics-pod.png"))
     print(f"wrote {args.out}", file=sys.stderr)
+
+
+BOUND_NULL_SEEDS, BOUND_SEEDS = range(1000, 1020), range(1100, 1140)
+BOUND_PER_KM = 0.1  # the map's target for unexplained places
+
+
+def bound_scan(track, spectra, both_rails: bool = True):  # type: ignore[no-untyped-def]
+    """A physics track's (2, n) geometry-bound z map and the track's first grid position (m)."""
+    from railwatch.physics import bound
+    from railwatch.physics.world import DX_M
+
+    z = bound.track_geometry(track.path, DX_M)
+    return bound.whitened_scan(z, spectra, bound.weld_templates(), both_rails=both_rails), track.x0
+
+
+def geometry_bound(work: Path, test_seeds: list[int]) -> dict[str, Any]:
+    """The bound's level (from clean tracks), and its z at every weld of the population and test
+    tracks; kept in ``work/bound.json``."""
+    from railwatch.physics import bound
+    from railwatch.physics.features import Inventory
+    from railwatch.physics.world import DX_M, MARGIN_M, World, build_track
+
+    kept = work / "bound.json"
+    if kept.exists():
+        out = json.loads(kept.read_text())
+        if out.get("test_seeds") == test_seeds:
+            return dict(out)
+    started = time.perf_counter()
+    plain = World(inventory=Inventory(turnouts_per_km=0, bridges_per_km=0,
+                                      level_crossings_per_km=0))
+    edge = int(round(MARGIN_M / bound.BOUND_DX_M))
+    clean = [bound.track_geometry(build_track(plain, s).clean, DX_M)[:, edge:-edge]
+             for s in BOUND_NULL_SEEDS]
+    spectra = bound.rail_spectra(clean)
+    out: dict[str, Any] = {"test_seeds": test_seeds, "level": {}, "welds": []}
+    cut = int(round(50.0 / bound.BOUND_DX_M))  # the circular DFT's reach at both ends
+    for both in (True, False):
+        places, km = [], 0.0
+        for z in clean:
+            zmap = bound.whitened_scan(z, spectra, bound.weld_templates(),
+                                       both_rails=both)[:, cut:-cut]
+            places += bound.peaks(zmap).tolist()
+            km += zmap.shape[1] * bound.BOUND_DX_M / 1000
+        out["level"]["both rails" if both else "one rail"] = bound.level(places, km,
+                                                                         BOUND_PER_KM)
+    out["null_km"] = km
+    for seed in [*BOUND_SEEDS, *test_seeds]:
+        track = build_track(World(inventory=inventory()), seed)
+        maps = {both: bound_scan(track, spectra, both) for both in (True, False)}
+        for it in track.defects:
+            if it.kind != "weld":
+                continue
+            row = {"seed": seed, "defect": it.index, "depth": it.depth_mm,
+                   "crown": it.param("crown_mm")}
+            for both, (zmap, x0) in maps.items():
+                i = int(round((it.position_m - x0) / bound.BOUND_DX_M))
+                reach = int(round(3.0 / bound.BOUND_DX_M))  # a place within ±3 m
+                row["both rails" if both else "one rail"] = float(
+                    zmap[:, i - reach:i + reach].max())
+            out["welds"].append(row)
+        print(f"geometry bound: track {seed} ({time.perf_counter() - started:.0f} s)",
+              file=sys.stderr)
+    kept.write_text(json.dumps(out))
+    return out
+
+
+def track_allows(work: Path, folders: list[Path], map_rows: list[dict[str, Any]]) -> list[str]:
+    """The page's section on the geometry bound: what the track allows of the welds."""
+    seeds = [int(f.name[5:].split("-")[0]) for f in folders]
+    got = geometry_bound(work, seeds)
+    lines = ["## What the track allows: welds\n",
+             "The oracle above knows each pass's clean twin, the track's irregularity as drawn; "
+             "a detector cannot. The **geometry bound** knows what a detector could: the rails' "
+             "spectra (estimated on clean tracks) and the weld's shape, and it sees the rails' "
+             "height itself, without vehicle or sensor noise: no detector knowing the track "
+             "only by its statistics does better from any number of passes "
+             "(`railwatch.physics.bound`; `docs/physics.md`). Its level: "
+             f"{BOUND_PER_KM:g} false places per km on {got['null_km']:.0f} km of clean "
+             f"tracks, z = {got['level']['both rails']:.2f} (both rails whitened together), "
+             f"{got['level']['one rail']:.2f} (each rail alone). Welds found (a z above the "
+             "level within ±3 m):\n",
+             "| welds | tracks | both rails | each rail alone |", "|---|---|---|---|"]
+    picks = [("all >= 0.3 mm", lambda w: w["depth"] >= 0.3),
+             ("crown < 0.04 mm, >= 0.3 mm", lambda w: w["depth"] >= 0.3 and w["crown"] < 0.04),
+             ("crown >= 0.04 mm, >= 0.3 mm",
+              lambda w: w["depth"] >= 0.3 and w["crown"] >= 0.04),
+             ("< 0.3 mm", lambda w: w["depth"] < 0.3)]
+    for where, group in (("1100-1139", [w for w in got["welds"] if w["seed"] >= 1100]),
+                         ("test", [w for w in got["welds"] if w["seed"] in seeds])):
+        for label, pick in picks:
+            rows = [w for w in group if pick(w)]
+            cells = [pct([w[k] > got["level"][k] for w in rows])
+                     for k in ("both rails", "one rail")]
+            lines.append(f"| {label} | {where} | {cells[0]} | {cells[1]} |")
+    lines += ["", "Each weld of 0.3 mm or more on the test tracks, the bound's z beside the "
+              "map's (5 passes, GNSS-aided):\n",
+              "| track | weld | depth (mm) | crown (mm) | bound z (both rails) | found by the "
+              "map |", "|---|---|---|---|---|---|"]
+    for w in sorted((w for w in got["welds"] if w["seed"] in seeds and w["depth"] >= 0.3),
+                    key=lambda w: w["both rails"]):
+        found = [r["found"][w["defect"]] for r in map_rows
+                 if r["n"] == 5 and r["track"].startswith(f"track{w['seed']}")
+                 and w["defect"] in r["found"]]
+        lines.append(f"| {w['seed']} | {w['defect']} | {w['depth']:.2f} | {w['crown']:.3f} | "
+                     f"{w['both rails']:.1f} | {sum(found)} of {len(found)} maps |")
+    return [*lines, ""]
 
 
 #: Worlds made differently from the test tracks' (their settings, train's flags), one track each.
