@@ -119,7 +119,7 @@ def above(scan: Path, factor: float, low: float) -> Path:
     import json
     import shutil
 
-    from railwatch.recordings.track_map import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
+    from railwatch.trackmap import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
 
     if factor == low:
         return scan
@@ -145,20 +145,21 @@ def above(scan: Path, factor: float, low: float) -> Path:
 def curve(scan: Path, truth: Path, share: float | None) -> list[dict[str, float]]:
     """Recall and false locations per km from the first 1, 2, 5, 10 passes: the votes map
     reported at ``share``, or (``share`` None) the fused map at its default rule."""
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
 
     passes = tm.read_scan(scan)
-    truth_m = tm.read_truth(truth)
+    truth_m = em.read_truth(truth)
     rows = []
     for k in COUNTS:
         use = passes[:k]
         lo, hi = tm.covered_range(use)
-        covered = tm.on_stretch(truth_m, lo, hi)
+        covered = em.on_stretch(truth_m, lo, hi)
         if share is None:
             shown = tm.reported_fused(tm.fused_map(use)[0])
         else:
             shown = tm.reported(tm.track_map(use), share, k)
-        s = tm.score_locations(shown, covered, hi - lo)
+        s = em.score_locations(shown, covered, hi - lo)
         rows.append({"passes": k, **s, "events_per_km": sum(len(p.position) for p in use)
                      / k / ((hi - lo) / 1000)})
     return rows
@@ -186,7 +187,7 @@ def throughput(folder: Path, detector: str) -> dict[str, float]:
     workers (fresh scan folders, the same ten passes)."""
     import ray
 
-    from railwatch.recordings.scan import scan
+    from railwatch.trackmap.scan import scan
 
     model = folder / f"model-{detector}"
     test = [folder / f"pass{i:02d}.parquet" for i in range(TRAIN + 1, PASSES + 1)]
@@ -219,8 +220,8 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
     import json
 
     from railwatch.recordings.pipeline import EVENT_FIELDS
-    from railwatch.recordings.track_map import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
     from railwatch.synthetic.track import Odometry, make_track, synthesize_pass
+    from railwatch.trackmap import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
 
     if odometry is None:
         return scan

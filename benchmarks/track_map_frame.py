@@ -49,7 +49,7 @@ VARIANTS = ("median frame, no check", "+ check of the moves", "frame from the st
 def variant(index: int, passes: list) -> Iterator[None]:  # type: ignore[type-arg]
     """The map's rules of ``VARIANTS[index]`` for ``passes`` (their starts hidden for the
     median frame)."""
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
 
     saved_verify, saved_starts = tm.verify_moves, [p.start for p in passes]
     if index in (0, 2):
@@ -73,7 +73,8 @@ def main() -> None:
                         help="comma-separated: which of the placements to measure")
     args = parser.parse_args()
     placements = {k: v for k, v in PLACEMENTS.items() if k in args.placements.split(",")}
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
     from railwatch.report.pages import write_markdown
 
     bench.SEEDS.update(ROLES)
@@ -83,7 +84,7 @@ def main() -> None:
         for role in ROLES:
             folder = bench.track(args.work, kind, role)
             base = bench.above(bench.scanned(folder, "matched-filter", low), 1.0, low)
-            truth = tm.read_truth(folder / "track.defects.csv")
+            truth = em.read_truth(folder / "track.defects.csv")
             for placed, odometry in placements.items():
                 events = base if odometry is None else bench.with_odometry(
                     base, folder, kind, role, odometry,
@@ -92,11 +93,11 @@ def main() -> None:
                 for subset in SUBSETS.values():
                     use = passes[subset]
                     lo, hi = tm.covered_range(use)
-                    covered = tm.on_stretch(truth, lo, hi)
+                    covered = em.on_stretch(truth, lo, hi)
                     for index in range(len(VARIANTS)):
                         with variant(index, use):
                             shown = tm.reported_fused(tm.fused_map(use)[0])
-                        s = tm.score_locations(shown, covered, hi - lo)
+                        s = em.score_locations(shown, covered, hi - lo)
                         cells.setdefault((kind, placed, index), []).append(
                             (s["recall"], s["false_per_km"]))
             print(kind, role, "done", flush=True)

@@ -77,8 +77,8 @@ def fisher(calibrated: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
 @contextmanager
 def rules(step: int) -> Iterator[None]:
     """The map's rules up to ``step`` (an index into STEPS), the later ones switched back."""
-    from railwatch.recordings import fusion
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.trackmap import fusion
 
     saved = fusion.calibrate, fusion.combine, tm.refine_by_profiles
     if step < 1:
@@ -100,7 +100,8 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
     parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-fusion.md"))
     args = parser.parse_args()
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
     from railwatch.report.pages import write_markdown
 
     bench.SEEDS.update(SEEDS)
@@ -120,16 +121,16 @@ def main() -> None:
                                                  "-true" if odometry == (0.0, 0.0, 0.0)
                                                  else "-gnss")
                 passes = tm.read_scan(events)
-                truth = tm.read_truth(folder / "track.defects.csv")
+                truth = em.read_truth(folder / "track.defects.csv")
                 for label, subset in SUBSETS.items():
                     use = passes[subset]
                     lo, hi = tm.covered_range(use)
-                    covered = tm.on_stretch(truth, lo, hi)
+                    covered = em.on_stretch(truth, lo, hi)
                     scores = []
                     for step in range(len(STEPS)):
                         with rules(step):
                             shown = tm.reported_fused(tm.fused_map(use)[0])
-                        scores.append(tm.score_locations(shown, covered, hi - lo))
+                        scores.append(em.score_locations(shown, covered, hi - lo))
                     cells[label].append(scores)
             for label, per_track in cells.items():
                 text = []

@@ -73,10 +73,11 @@ def scan_of(work: Path, kind: str, role: str, combed: bool) -> tuple[Path, Path]
 def measure(work: Path, kind: str, detector: str, role: str, combed: bool,
             keys: dict[tuple[str, str, str, str], str], done: dict[str, list]) -> None:  # type: ignore[type-arg]
     """Every map of one track and row: ``done[key]`` = [recall, false per km, rule used]."""
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
 
     folder, base = scan_of(work, kind, role, combed)
-    truth = tm.read_truth(folder / "track.defects.csv")
+    truth = em.read_truth(folder / "track.defects.csv")
     for placed, odometry in PLACEMENTS.items():
         events = base if odometry is None else bench.with_odometry(
             base, folder, kind, role, odometry)
@@ -85,10 +86,10 @@ def measure(work: Path, kind: str, detector: str, role: str, combed: bool,
             for subset in subsets:
                 use = passes[subset]
                 lo, hi = tm.covered_range(use)
-                covered = tm.on_stretch(truth, lo, hi)
+                covered = em.on_stretch(truth, lo, hi)
                 for rule in RULES:
                     locations, fused = tm.fused_map(use, sides=rule)
-                    s = tm.score_locations(tm.reported_fused(locations), covered, hi - lo)
+                    s = em.score_locations(tm.reported_fused(locations), covered, hi - lo)
                     done[keys[(placed, count, str(subset), rule)]] = [
                         s["recall"], s["false_per_km"], fused.sides]
 

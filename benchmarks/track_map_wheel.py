@@ -100,16 +100,17 @@ def combed_track(work: Path, kind: str, role: str, variant: str,
 
 
 def curve(scan: Path, truth: Path) -> list[tuple[float, float]]:
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
 
     passes = tm.read_scan(scan)
-    defects = tm.read_truth(truth)
+    defects = em.read_truth(truth)
     cells = []
     for subset in SUBSETS.values():
         use = passes[subset]
         lo, hi = tm.covered_range(use)
-        s = tm.score_locations(tm.reported_fused(tm.fused_map(use)[0]),
-                               tm.on_stretch(defects, lo, hi), hi - lo)
+        s = em.score_locations(tm.reported_fused(tm.fused_map(use)[0]),
+                               em.on_stretch(defects, lo, hi), hi - lo)
         cells.append((s["recall"], s["false_per_km"]))
     return cells
 

@@ -23,16 +23,15 @@ LAYERS: tuple[tuple[str, ...], ...] = (
      "railwatch.mapping_files", "railwatch.machine", "railwatch.parallel"),
     ("railwatch.windows", "railwatch.recordings.layout"),  # file formats
     ("railwatch.recordings", "railwatch.recordings.readers",
-     "railwatch.recordings.prepare", "railwatch.recordings.fusion",
-     "railwatch.recordings.wheel",
-     "railwatch.scoring"),  # recordings; the scoring library; evidence fused across passes
+     "railwatch.recordings.prepare", "railwatch.recordings.wheel",
+     "railwatch.scoring"),  # recordings; the scoring library
     ("railwatch.synthetic",),  # synthetic windows and runs (runs written as recordings)
     ("railwatch.physics",),  # the vehicle-track world: passes written as recordings, twins
     ("railwatch.detectors",),
     ("railwatch.evaluation", "railwatch.evaluation.metrics"),
     ("railwatch.deploy",),  # a detector exported to, and loaded from, ONNX
-    ("railwatch.recordings.stream", "railwatch.recordings.pipeline", "railwatch.recordings.scan",
-     "railwatch.recordings.track_map"),  # workflows on recordings
+    ("railwatch.recordings.stream", "railwatch.recordings.pipeline"),  # detection on recordings
+    ("railwatch.trackmap",),  # repeated passes: scan, the scan folder, alignment, fusion, maps
     ("railwatch.report",),  # tables, figures, the benchmark's report, the detection plot
     ("railwatch.bench",),
     ("railwatch.cli",),

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from railwatch.cli import main
+from railwatch.evaluation.maps import read_truth
 from railwatch.recordings.layout import load_layout
 from railwatch.recordings.readers import Recording
-from railwatch.recordings.track_map import read_truth
 
 
 def test_simulate_writes_passes_twins_and_truth(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]

@@ -37,8 +37,8 @@ def test_plot_detection(tmp_path: Path) -> None:
 
 
 def test_track_map_figure_draws_the_fused_evidence_and_the_votes(tmp_path: Path) -> None:
-    from railwatch.recordings import fusion
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.trackmap import fusion
 
     rng = np.random.default_rng(0)
     xs = [np.arange(0.0, 2000.0, 0.25) for _ in range(3)]

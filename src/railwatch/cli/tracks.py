@@ -13,9 +13,9 @@ from railwatch.cli.common import info, writable_file
 from railwatch.errors import RailwatchError
 
 #: How track-map ranks places: fused_map (evidence from every pass's scores) or track_map (the
-#: share of passes with an event), both in recordings.track_map.
+#: share of passes with an event), both in railwatch.trackmap.maps.
 METHOD_CHOICES = ("fused", "votes")
-#: recordings.track_map.SIDES (not imported here: the CLI loads the recordings lazily).
+#: railwatch.trackmap.SIDES (not imported here: the CLI loads the track map lazily).
 SIDES_CHOICES = ("auto", "swap", "keep", "group")
 
 
@@ -73,7 +73,7 @@ def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, .
     """
     from railwatch.progress import Progress
     from railwatch.recordings.layout import load_layout
-    from railwatch.recordings.scan import scan as scan_recordings
+    from railwatch.trackmap.scan import scan as scan_recordings
 
     if address and executor != "ray":
         raise RailwatchError("--address goes with --executor ray")
@@ -163,7 +163,8 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     Example:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
     """
-    from railwatch.recordings import track_map as tm
+    from railwatch import trackmap as tm
+    from railwatch.evaluation import maps as em
 
     if out.suffix.lower() != ".csv":
         raise RailwatchError(f"--out {out.name}: write the map to a .csv file")
@@ -171,7 +172,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     if plot is not None:
         writable_file(plot)
     passes = tm.read_scan(events_dir)
-    truth_m = tm.read_truth(truth) if truth else None
+    truth_m = em.read_truth(truth) if truth else None
     fused = None
     if method == "fused":
         if min_events.strip().lower() == "auto":
@@ -203,10 +204,10 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     if truth_m is not None:
         assert truth is not None
         lo, hi = tm.covered_range(passes)
-        covered = tm.on_stretch(truth_m, lo, hi)
+        covered = em.on_stretch(truth_m, lo, hi)
         beside = truth.with_name("track.features.csv")  # simulate's features: not defects
-        features = tm.read_truth(beside) if beside.is_file() and beside != truth else None
-        s = tm.score_locations(reported, covered, hi - lo, tolerance_m, features)
+        features = em.read_truth(beside) if beside.is_file() and beside != truth else None
+        s = em.score_locations(reported, covered, hi - lo, tolerance_m, features)
         line += (f"; against the {len(covered)} defects of {truth.name} on the covered "
                  f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "
                  f"±{tolerance_m:g} m, {s['false_per_km']:.2f} false locations per km")

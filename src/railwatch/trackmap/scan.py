@@ -30,7 +30,8 @@ from railwatch.errors import RailwatchError
 from railwatch.recordings import pipeline
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording
-from railwatch.recordings.track_map import (
+from railwatch.trackmap.folder import (
+    COMBINED,
     EVENTS_SUFFIX,
     PROFILE_KIND,
     PROFILE_SUFFIX,
@@ -39,7 +40,6 @@ from railwatch.recordings.track_map import (
 
 #: Ray's memory resource asked per recording task: what one streaming scan needs with room.
 TASK_MEMORY = 2 * 1024**3
-COMBINED = "events.csv"
 
 
 @dataclass(frozen=True)

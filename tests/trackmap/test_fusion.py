@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from railwatch import trackmap as tm
 from railwatch.errors import RailwatchError
-from railwatch.recordings import fusion
-from railwatch.recordings import track_map as tm
+from railwatch.evaluation import maps as em
+from railwatch.trackmap import fusion
 
 LENGTH = 5_000.0
 
@@ -176,7 +177,7 @@ def test_fused_map_of_a_scan_folder(tmp_path: Path) -> None:
     assert all(p.profile is not None for p in passes)
     locations, fused = tm.fused_map(passes)
     shown = tm.reported_fused(locations, 0.1)
-    s = tm.score_locations(shown, defects, LENGTH, 2.0)
+    s = em.score_locations(shown, defects, LENGTH, 2.0)
     assert s["recall"] == 1.0 and s["false_per_km"] <= 0.4, s  # 0.1-0.2 per km on average
     top = locations[0]
     assert top.group == "axle" and top.channel == "axle_1" and top.passes_seen >= 5
@@ -206,7 +207,7 @@ def test_at_field_scale_a_place_needs_an_event(tmp_path: Path) -> None:
     assert tm.min_events_for(passes) == 1
     shown = places(passes)
     assert not any(abs(loc.position_m - 2600) < 2 for loc in shown)
-    assert tm.score_locations(shown, defects, LENGTH, 2.0)["recall"] == 1.0
+    assert em.score_locations(shown, defects, LENGTH, 2.0)["recall"] == 1.0
     assert all(loc.passes_with_event >= 1 for loc in shown)
     assert any(abs(loc.position_m - 2600) < 2 for loc in places(passes, min_events=0))
     with pytest.raises(RailwatchError, match="--min-events must be 0 or more"):
@@ -334,7 +335,7 @@ def test_auto_sides_follow_the_vehicle(tmp_path: Path, world: str) -> None:
     for sides in ("auto", "swap", "keep", "group"):
         locations, fused = tm.fused_map(passes, sides=sides)
         assert fused.sides == (world if sides == "auto" else sides)
-        s = tm.score_locations(tm.reported_fused(locations), defects, LENGTH)
+        s = em.score_locations(tm.reported_fused(locations), defects, LENGTH)
         recall[sides] = s["recall"]
         if sides == "auto":  # each place names its rail: the channel of a pass up the map
             rails = {float(d): f"axle_{r + 1}" for d, r in zip(defects, rail, strict=True)}

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from railwatch import trackmap as tm
 from railwatch.errors import RailwatchError
-from railwatch.recordings import track_map as tm
+from railwatch.evaluation import maps as em
 
 
 def passes_over(truth: np.ndarray, n: int, seen: float, false_per_km: float, length: float,
@@ -141,12 +142,12 @@ def test_map_of_passes_with_odometry_errors_finds_the_defects(monkeypatch) -> No
     offsets = [(float(x), 1 + float(y)) for x, y in zip(np.r_[a, -a], np.r_[e, -e], strict=True)]
     passes = passes_over(truth, 10, 0.7, 2.0, 10_000, offsets=offsets)
     got = tm.reported(tm.track_map(passes, tolerance_m=2.0), 0.3, len(passes))
-    s = tm.score_locations(got, truth, 10_000, 2.0)
+    s = em.score_locations(got, truth, 10_000, 2.0)
     assert s["recall"] >= 0.95 and s["false_per_km"] <= 0.2, s
     # Taken as recorded, offsets of 8 m scatter the passes: the alignment is what finds them.
-    monkeypatch.setattr(tm, "align", lambda p, *a, **k: [(0.0, 1.0)] * len(p))
+    monkeypatch.setattr(tm.maps, "align", lambda p, *a, **k: [(0.0, 1.0)] * len(p))
     as_recorded = tm.reported(tm.track_map(passes, tolerance_m=2.0), 0.3, len(passes))
-    assert tm.score_locations(as_recorded, truth, 10_000, 2.0)["recall"] < 0.8
+    assert em.score_locations(as_recorded, truth, 10_000, 2.0)["recall"] < 0.8
 
 
 def test_seen_on_9_of_10_ranks_above_1_of_10() -> None:

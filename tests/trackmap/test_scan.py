@@ -20,8 +20,8 @@ from railwatch.recordings import pipeline
 from railwatch.recordings.layout import load_layout
 from railwatch.recordings.prepare import Preparation
 from railwatch.recordings.readers import Recording
-from railwatch.recordings.scan import scan
 from railwatch.synthetic.track import write_track
+from railwatch.trackmap.scan import scan
 from support import tiny_config
 
 

@@ -1,0 +1,59 @@
+"""The repeated-pass workflow: many recordings of one line scanned by a model, then fused into
+a map of places to inspect.
+
+=========================================  ==================================================
+:mod:`~railwatch.trackmap.scan`            ``railwatch scan``: one model over many recordings
+                                           (locally or as Ray tasks, resumable)
+:mod:`~railwatch.trackmap.folder`          the scan folder it writes and the map reads (every
+                                           file name and key), and the map's CSV
+:mod:`~railwatch.trackmap.align`           the passes' odometry laid on each other
+:mod:`~railwatch.trackmap.fusion`          evidence fused across passes, and its calibration
+:mod:`~railwatch.trackmap.maps`            the map: fused (default) or votes, and what it
+                                           reports
+=========================================  ==================================================
+
+Scoring a map against the true defects is evaluation: :mod:`railwatch.evaluation.maps`. How the
+map works and its choices: ``docs/track-map.md``.
+"""
+
+from railwatch.trackmap import fusion, maps
+from railwatch.trackmap.align import (
+    align,
+    chance_gain,
+    fit_transform,
+    refine_by_profiles,
+    verify_moves,
+)
+from railwatch.trackmap.folder import (
+    COMBINED,
+    EVENTS_SUFFIX,
+    MAP_FIELDS,
+    PROFILE_KIND,
+    PROFILE_SUFFIX,
+    SCAN_SUFFIX,
+    Location,
+    PassEvents,
+    ScoreProfile,
+    read_scan,
+    write_map,
+)
+from railwatch.trackmap.maps import (
+    MIN_EVENTS,
+    SIDES,
+    covered_range,
+    fused_map,
+    min_events_for,
+    rail_scores,
+    reported,
+    reported_fused,
+    single_linkage,
+    track_map,
+    wilson_lower,
+)
+
+__all__ = ["fusion", "maps", "COMBINED", "EVENTS_SUFFIX", "MAP_FIELDS", "MIN_EVENTS",
+           "PROFILE_KIND", "PROFILE_SUFFIX", "SCAN_SUFFIX", "SIDES", "Location", "PassEvents",
+           "ScoreProfile", "align", "chance_gain", "covered_range", "fit_transform", "fused_map",
+           "min_events_for", "rail_scores", "read_scan", "refine_by_profiles", "reported",
+           "reported_fused", "single_linkage", "track_map", "verify_moves", "wilson_lower",
+           "write_map"]
