@@ -21,6 +21,7 @@ from railwatch.recordings.layout import load_layout
 from railwatch.recordings.prepare import Preparation
 from railwatch.recordings.readers import Recording
 from railwatch.synthetic.track import write_track
+from railwatch.trackmap import folder as tf
 from railwatch.trackmap.scan import scan
 from support import tiny_config
 
@@ -75,6 +76,22 @@ def test_scan_writes_every_recording_and_a_combined_table(track) -> None:  # typ
     info_path.write_text(json.dumps(info))
     redo = scan(folder / "model", paths, out)
     assert (redo.scanned, redo.reused) == (1, 3)
+
+
+def test_the_folder_module_names_every_file_and_key(track) -> None:  # type: ignore[no-untyped-def]
+    """What a scan writes is what ``trackmap.folder`` names, and nothing else."""
+    folder, paths = track
+    out = folder / "scan-names"
+    scan(folder / "model", paths[:1], out)
+    stem = paths[0].stem
+    suffixes = (tf.SCAN_SUFFIX, tf.EVENTS_SUFFIX, tf.PROFILE_SUFFIX)
+    assert sorted(q.name for q in out.iterdir()) == sorted(
+        [tf.COMBINED, *(stem + s for s in suffixes)])
+    assert tuple(json.loads((out / f"{stem}{tf.SCAN_SUFFIX}").read_text())) == tf.SCAN_KEYS
+    with np.load(out / f"{stem}{tf.PROFILE_SUFFIX}", allow_pickle=False) as f:
+        assert sorted(f.files) == sorted(tf.PROFILE_ARRAYS)
+    with pytest.raises(ValueError, match="not keys of a scan record: speed"):
+        tf.scan_record(speed=1.0)
 
 
 @pytest.mark.slow

@@ -268,10 +268,11 @@ class Profile:
         self._aux.append(np.stack([time, position], axis=1))
         self._channel.append(np.asarray(channel, dtype=np.float32))
 
-    def arrays(self) -> dict[str, NDArray[Any]]:
+    def columns(self) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
+        """(time (n,), position (n,), channel scores (n, C)) so far."""
         aux = np.concatenate(self._aux) if self._aux else np.zeros((0, 2))
         channel = np.concatenate(self._channel) if self._channel else np.zeros((0, 0))
-        return {"time_s": aux[:, 0], "position_m": aux[:, 1], "channel_score": channel}
+        return aux[:, 0], aux[:, 1], channel
 
 
 @dataclass

@@ -17,6 +17,7 @@ import math
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +38,14 @@ MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_k
               "passes_seen", "passes_with_event", "passes_covered", "share", "confidence",
               "median_score", "channel", "group", "kind_guess", "first_seen", "last_seen")
 COMBINED = "events.csv"  # every recording's events, a ``recording`` column first
+#: The arrays of ``NAME.profile.npz``: each sample's time (s), recorded position (m, NaN
+#: without one) and score per channel (n, C), and the channels' names and sensor groups.
+PROFILE_ARRAYS = ("time_s", "position_m", "channel_score", "channels", "groups")
+#: The keys of ``NAME.scan.json``: what was scanned, by which model, how, and the stretch of
+#: track it covered (recorded positions of its first and last sample).
+SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
+             "position_last_m", "profile", "wheel_turns_m", "scale", "model", "model_path",
+             "signature", "threshold_given", "scanned")
 
 
 @dataclass
@@ -161,15 +170,33 @@ def _read_pass(info_path: Path) -> PassEvents:
                       if info.get("profile") == PROFILE_KIND else None)
 
 
+def profile_arrays(time_s: NDArray[np.float64], position_m: NDArray[np.float64],
+                   channel_score: NDArray[np.float32], channels: tuple[str, ...],
+                   groups: tuple[str, ...]) -> dict[str, NDArray[Any]]:
+    """``NAME.profile.npz``'s arrays by their names (:data:`PROFILE_ARRAYS`)."""
+    values = (np.asarray(time_s, dtype=float), np.asarray(position_m, dtype=float),
+              np.asarray(channel_score, dtype=np.float32), np.array(channels), np.array(groups))
+    return dict(zip(PROFILE_ARRAYS, values, strict=True))
+
+
+def scan_record(**values: Any) -> dict[str, Any]:
+    """``NAME.scan.json``'s content; a key it does not know (:data:`SCAN_KEYS`) is a bug."""
+    unknown = sorted(set(values) - set(SCAN_KEYS))
+    if unknown:
+        raise ValueError(f"not keys of a scan record: {', '.join(unknown)}")
+    return {k: values[k] for k in SCAN_KEYS if k in values}
+
+
 def _read_profile(path: Path) -> ScoreProfile | None:
     if not path.is_file():
         return None
     try:
         with np.load(path, allow_pickle=False) as f:
-            profile = ScoreProfile(position=np.asarray(f["position_m"], dtype=float),
-                                   channel_score=np.asarray(f["channel_score"], np.float32),
-                                   channels=tuple(str(c) for c in f["channels"]),
-                                   groups=tuple(str(g) for g in f["groups"]))
+            _, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
+            profile = ScoreProfile(position=np.asarray(position, dtype=float),
+                                   channel_score=np.asarray(score, np.float32),
+                                   channels=tuple(str(c) for c in channels),
+                                   groups=tuple(str(g) for g in groups))
     except (OSError, ValueError, KeyError) as e:
         raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
                              "scan again") from None

@@ -36,6 +36,8 @@ from railwatch.trackmap.folder import (
     PROFILE_KIND,
     PROFILE_SUFFIX,
     SCAN_SUFFIX,
+    profile_arrays,
+    scan_record,
 )
 
 #: Ray's memory resource asked per recording task: what one streaming scan needs with room.
@@ -112,9 +114,9 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
         with atomic_path(out / f"{name}{EVENTS_SUFFIX}") as tmp:
             tmp.write_text(events_text)
         atomic_savez(out / f"{name}{PROFILE_SUFFIX}", profile)
-        info.update(model=ident, model_path=str(model), signature=_signature(path),
-                    threshold_given=threshold,
-                    scanned=datetime.datetime.now().isoformat(timespec="seconds"))
+        info = scan_record(**info, model=ident, model_path=str(model),
+                           signature=_signature(path), threshold_given=threshold,
+                           scanned=datetime.datetime.now().isoformat(timespec="seconds"))
         with atomic_path(out / f"{name}{SCAN_SUFFIX}") as tmp:  # last: marks it done
             tmp.write_text(json.dumps(info, indent=1))
         if on_recording is not None:
@@ -153,17 +155,15 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
                              rm.threshold if threshold is None else threshold, profile=profile)
     position = np.asarray(result.trace.position, dtype=float)
     finite = position[np.isfinite(position)]
-    info = {
-        "recording": str(path), "duration_s": rec.duration_s, "events": len(result.events),
-        "threshold": result.threshold, "detect_s": time.perf_counter() - started,
-        "position_first_m": float(finite[0]) if len(finite) else None,
-        "position_last_m": float(finite[-1]) if len(finite) else None,
-        "profile": PROFILE_KIND,
-        "wheel_turns_m": result.wheel_turns,
-        "scale": rm.layout.scale,  # the model's: track-map's --min-events follows it
-    }
-    arrays = {**profile.arrays(), "channels": np.array(lay.channels),
-              "groups": np.array(lay.groups)}
+    info = scan_record(
+        recording=str(path), duration_s=rec.duration_s, events=len(result.events),
+        threshold=result.threshold, detect_s=time.perf_counter() - started,
+        position_first_m=float(finite[0]) if len(finite) else None,
+        position_last_m=float(finite[-1]) if len(finite) else None,
+        profile=PROFILE_KIND, wheel_turns_m=result.wheel_turns,
+        scale=rm.layout.scale,  # the model's: track-map's --min-events follows it
+    )
+    arrays = profile_arrays(*profile.columns(), lay.channels, lay.groups)
     return pipeline.events_text(result.events, "csv"), arrays, info
 
 
