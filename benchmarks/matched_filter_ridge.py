@@ -1,7 +1,8 @@
 """The matched filter's ridge (1e-6 before 2026-12-02, 0.1 since) on data it was not chosen on.
 
 The ridge was chosen on the track map's development track (recordings of our run synthesiser,
-resampled 2000 -> 100 Hz; docs/track-map.md, "Where the per-pass loss came from"). Here:
+resampled 2000 -> 100 Hz; docs/notes/2026-12-03-track-map-how-we-got-here.md, "Where the
+per-pass loss came from"). Here:
 
 1. **The benchmark's windows**, generated at 100 Hz with white noise (no resampling, no empty
    band): instance ROC-AUC per stage, 2,000 training windows (seed 0) and 2,000 test windows

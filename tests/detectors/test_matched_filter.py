@@ -126,7 +126,8 @@ def band_limited(n: int, seed: int, spike: bool) -> tuple[np.ndarray, np.ndarray
 def test_ridge_keeps_the_predictor_stable_on_resampled_recordings() -> None:
     """An unloaded predictor whitens the empty band above the resampling filter's cut-off
     into unstable filters; the default ridge finds the defect as the top of its window far
-    more often (docs/track-map.md, "Where the per-pass loss came from")."""
+    more often (docs/notes/2026-12-03-track-map-how-we-got-here.md, "Where the per-pass loss
+    came from")."""
     train, _ = band_limited(300, 0, spike=False)
     X, at = band_limited(300, 1, spike=True)
 

@@ -14,9 +14,10 @@ Per window and channel (a series ``x`` of ``T`` samples), all vectorised over th
    residual for the first ``p`` samples). The normal equations are loaded with a ridge of
    ``ridge`` (0.1) × their mean diagonal: a recording resampled to 100 Hz is empty above the
    anti-aliasing filter's 40 Hz, and an unloaded predictor whitens that empty band into large,
-   unstable prediction-error filters (``docs/track-map.md``, "Where the per-pass loss came
-   from": 78 % of the defect crossings in the top 1 % of their neighbourhood with 1e-6, 92 %
-   with 0.1; on the benchmark's white-noise windows 0.1 is also slightly better).
+   unstable prediction-error filters (``docs/notes/2026-12-03-track-map-how-we-got-here.md``,
+   "Where the per-pass loss came from": 78 % of the defect crossings in the top 1 % of their
+   neighbourhood with 1e-6, 92 % with 0.1; on the benchmark's white-noise windows 0.1 is also
+   slightly better).
 2. **Noise level with one change point** (stage 4 changes the noise std once): the split of the
    residual's squared values (winsorised at 3 robust standard deviations, so the anomaly does not
    pick the split) into two constant-variance segments of maximal Gaussian likelihood; each

@@ -1,5 +1,6 @@
 """Wheel-periodic impulses taken out of a recording before the detector (``railwatch train
---wheel-comb``; docs/track-map.md, "The impulses out of the signal").
+--wheel-comb``; docs/notes/2026-12-03-track-map-how-we-got-here.md, "The impulses out of
+the signal").
 
 A flat or out-of-round wheel strikes the rail once per turn, so its impulses repeat at the
 wheel's circumference along the track, at positions of their own on every pass. Per channel:

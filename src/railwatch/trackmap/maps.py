@@ -49,8 +49,8 @@ SPIKE_LIKE_S = 0.4
 #: way: turned at the line's ends), ``keep`` (a vehicle whose sides stay on their rails:
 #: push-pull), ``group`` (each sensor group's highest channel: either), ``auto`` (``swap`` or
 #: ``keep``, the one under which the passes agree most: the most evidence summed over the
-#: places stronger than chance gives :data:`CHOICE_PER_KM` times per km; docs/track-map.md,
-#: "The sides of the vehicle").
+#: places stronger than chance gives :data:`CHOICE_PER_KM` times per km;
+#: docs/notes/2026-12-03-track-map-how-we-got-here.md, "The sides of the vehicle").
 SIDES = ("auto", "swap", "keep", "group")
 CHOICE_PER_KM = 0.1
 
