@@ -181,3 +181,20 @@ def test_api_scoring_and_evaluation_do_not_import_torch() -> None:
             "d.names(); print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_reports_ask_the_registry_not_the_name() -> None:
+    """``report/`` never compares a detector's name with a literal of the registry's own rows
+    (the ceiling, a reference, a ``+glr`` suffix): it asks ``registry.role`` and
+    ``registry.variant_of``."""
+    literals = {"oracle", "matched-filter", "+glr"}
+    found = []
+    for path in SRC.joinpath("railwatch", "report").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Compare):
+                parts = [node.left, *node.comparators]
+                if any(isinstance(p, ast.Constant) and p.value in literals for p in parts):
+                    found.append(f"{path.name}:{node.lineno}")
+            elif isinstance(node, ast.Name) and node.id == "GLR_SUFFIX":
+                found.append(f"{path.name}:{node.lineno}")
+    assert not found, found

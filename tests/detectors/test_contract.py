@@ -133,3 +133,19 @@ def test_injected_spike_scores_higher(fitted, data) -> None:  # type: ignore[no-
     ctx = {k: v[normal] for k, v in context(test).items()}
     higher = fitted.score(spiked, ctx).instance > fitted.score(clean, ctx).instance
     assert higher.all(), fitted.registry_name
+
+
+def test_roles_and_variants_come_from_the_registry() -> None:
+    """What a report needs to know of a row, asked of the registry rather than read off its
+    name: the ceiling, the classical references, and whose network a ``+glr`` row scores."""
+    from railwatch.detectors import registry
+
+    assert registry.role("oracle") == "ceiling"
+    assert registry.role("matched-filter") == "reference"
+    assert {registry.role(n) for n in registry.names()} <= set(registry.ROLES)
+    assert registry.role("context-glr") == registry.role("a-detector-of-my-own") == "learned"
+    assert registry.ceiling(["cnn-ae", "matched-filter", "oracle"]) == "oracle"
+    assert registry.ceiling(["cnn-ae"]) is None
+    assert registry.variant_of("cnn-ae+glr") == "cnn-ae"
+    assert registry.variant_of("cnn-ae") == "cnn-ae"
+    assert all(registry.variant_of(f"{n}+glr") == n for n in registry.GLR_VARIANTS)

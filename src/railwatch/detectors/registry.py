@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import importlib
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -21,12 +21,18 @@ from railwatch.detectors.api import GLR_SCORING, Detector, config_from_dict
 from railwatch.errors import RailwatchError, naming, one_line
 from railwatch.scoring import GLR_SUFFIX
 
+#: What a detector is to a report: a ``learned`` model, a classical ``reference`` that learns no
+#: network, or the ``ceiling``, which knows the generator's truth (the benchmark's upper bound).
+ROLES = ("learned", "reference", "ceiling")
+
 
 @dataclass(frozen=True)
 class Entry:
     target: str  # "module:Class"
     description: str
     overrides: Mapping[str, Any] = field(default_factory=dict)
+    role: str = "learned"  # one of ROLES
+    variant_of: str = ""  # a row that scores another entry's trained network another way
 
 
 REGISTRY: dict[str, Entry] = {
@@ -58,10 +64,10 @@ REGISTRY: dict[str, Entry] = {
                          "noise scale from the context, spike/box GLR scan of the residual"),
     "matched-filter": Entry("railwatch.detectors.matched_filter:MatchedFilter",
                             "classical baseline: robust linear predictor + matched filters for "
-                            "spikes and 5-20-sample boxes, no network"),
+                            "spikes and 5-20-sample boxes, no network", role="reference"),
     "oracle": Entry("railwatch.detectors.oracle:Oracle",
                     "ceiling (synthetic data only): GLR test on the residual whitened with the "
-                    "generator's true nuisance signal and noise std"),
+                    "generator's true nuisance signal and noise std", role="ceiling"),
 }
 
 #: The reconstruction models that also get a ``NAME+glr`` row: the same trained network (bench
@@ -72,12 +78,30 @@ REGISTRY.update({
     f"{name}{GLR_SUFFIX}": Entry(REGISTRY[name].target,
                          f"{name}'s residual scored by the shared GLR scan (noise scale with one "
                          "change point, spike and 5-20-sample box tests) instead of its own score",
-                         {**REGISTRY[name].overrides, "scoring": GLR_SCORING})
+                         {**REGISTRY[name].overrides, "scoring": GLR_SCORING}, variant_of=name)
     for name in GLR_VARIANTS})
 
 
 def names() -> list[str]:
     return list(REGISTRY)
+
+
+def role(name: str) -> str:
+    """The entry's role (:data:`ROLES`); a name the registry does not hold is ``learned``."""
+    entry = REGISTRY.get(name)
+    return entry.role if entry is not None else "learned"
+
+
+def ceiling(detectors: Sequence[str]) -> str | None:
+    """The first of ``detectors`` whose role is the ceiling, or None."""
+    return next((d for d in detectors if role(d) == "ceiling"), None)
+
+
+def variant_of(name: str) -> str:
+    """The entry whose trained network this row scores another way (``cnn-ae`` for
+    ``cnn-ae+glr``), or the name itself."""
+    entry = REGISTRY.get(name)
+    return entry.variant_of if entry is not None and entry.variant_of else name
 
 
 def class_for(name: str) -> type[Detector]:

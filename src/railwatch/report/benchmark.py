@@ -19,6 +19,7 @@ from typing import Any, Protocol
 
 from numpy.typing import NDArray
 
+from railwatch.detectors import registry
 from railwatch.report import figures as F
 from railwatch.report import tables as T
 from railwatch.report.pages import write_text
@@ -142,10 +143,11 @@ def why_different(records: list[dict[str, Any]], stages: list[int],
     def auc(stage: int, det: str) -> float:
         return T.mean_std(agg.get((stage, det), []))[0]
 
-    learned = [d for d in detectors if d not in T.REFERENCES]
+    learned = [d for d in detectors if registry.role(d) == "learned"]
     out = []
-    if "oracle" in detectors:
-        values = [auc(s, "oracle") for s in stages]
+    top = registry.ceiling(detectors)
+    if top is not None:
+        values = [auc(s, top) for s in stages]
         text = (f"The oracle, which knows each window's clean signal and noise level, scores "
                 f"between {min(values):.3f} and {max(values):.3f} over the stages of this run. "
                 "Under the instance-level AUC no detector can beat it: where the paper reports "
@@ -155,7 +157,7 @@ def why_different(records: list[dict[str, Any]], stages: list[int],
             paper = [v[6] - v[5] for v in T.PAPER_TABLE1.values()]
             text += (f" The paper's universal drop at stage 7 ({min(paper):+.3f} to "
                      f"{max(paper):+.3f}) is not a property of the data: the oracle moves by "
-                     f"{auc(7, 'oracle') - auc(6, 'oracle'):+.3f} there.")
+                     f"{auc(7, top) - auc(6, top):+.3f} there.")
         out.append(("The ceiling", text))
     out.append(("The metric", "The paper's AUC is computed from seven thresholds {0.5 %, 1 %, "
                 "1.5 %, 2 %, 10 %, 20 %, 30 %} and its text does not say whether it is per "
@@ -172,8 +174,7 @@ def why_different(records: list[dict[str, Any]], stages: list[int],
     if 3 in stages and 4 in stages and learned:
         drops = {d: auc(4, d) - auc(3, d) for d in learned if auc(3, d) >= 0.6}  # not at chance
         drops = drops or {d: auc(4, d) - auc(3, d) for d in learned}
-        refs = "; ".join(f"{d} {auc(4, d) - auc(3, d):+.3f}" for d in T.REFERENCES
-                         if d in detectors)
+        refs = "; ".join(f"{d} {auc(4, d) - auc(3, d):+.3f}" for d in T.references(detectors))
         out.append(("Noise that changes within a window", "From stage 4 the noise std steps "
                     "from σ to σ + Δσ (up to 1.0) inside a window. Scores normalised by training "
                     "statistics, or per window, assume one noise level per window; a step inside "

@@ -15,7 +15,7 @@ from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
-from railwatch.scoring import GLR_SUFFIX
+from railwatch.detectors import registry
 from railwatch.windows import KIND_NAMES, WindowSet
 
 if TYPE_CHECKING:
@@ -118,7 +118,7 @@ def auc_vs_stage_figure(
     fig = Figure(figsize=(12, 5.5), layout="constrained")
     ax = fig.subplots()
     # a NAME+glr row (the same model, scored by the shared GLR scan) takes NAME's colour, dashed
-    base = {d: d.removesuffix(GLR_SUFFIX) if d.removesuffix(GLR_SUFFIX) in detectors else d
+    base = {d: registry.variant_of(d) if registry.variant_of(d) in detectors else d
             for d in detectors}
     own = [d for d in detectors if base[d] == d]
     colours = dict(zip(own, _palette(len(own)), strict=True))
@@ -126,8 +126,8 @@ def auc_vs_stage_figure(
         stats = [mean_std(agg.get((s, d), [])) for s in stages]
         mean = np.array([m for m, _ in stats])
         std = np.array([sd for _, sd in stats])
-        if d == "oracle":
-            ax.plot(stages, mean, "k--", lw=2.2, label="oracle (ceiling)")
+        if registry.role(d) == "ceiling":
+            ax.plot(stages, mean, "k--", lw=2.2, label=f"{d} (ceiling)")
             continue
         variant = base[d] != d
         ax.errorbar(stages, mean, yerr=std, marker="s" if variant else "o", ms=4, lw=1.6,

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from railwatch.detectors import registry
+
 #: The paper's Table I (AUC per stage). Columns: the paper's five models, mapped to registry
 #: names. The paper does not say which scoring variant its own column used; we set it beside
 #: ``aft-attention``, its headline variant.
@@ -102,7 +104,8 @@ def auc_table(
 ) -> Table:
     """Stage rows, detector columns, mean ± std over seeds, with each stage's drop."""
     agg = aggregate(records, metric)
-    header = ["stage", ""] + [d + (" (ceiling)" if d == "oracle" else "") for d in detectors]
+    header = ["stage", ""] + [d + (" (ceiling)" if registry.role(d) == "ceiling" else "")
+                              for d in detectors]
     table = Table(title=f"{metric} per stage", header=header)
     previous: dict[str, float] = {}
     for s in stages:
@@ -136,16 +139,16 @@ def paper_difference_table(
     """Ours minus the paper's Table I, for the paper's models."""
     agg = aggregate(records, "auc_instance")
     cols = [d for d in detectors if d in PAPER_TABLE1]
-    oracle = "oracle" in detectors
+    top = registry.ceiling(detectors)
     table = Table(title="auc_instance: ours − paper", header=["stage", *cols]
-                  + (["oracle ceiling − paper's best"] if oracle else []))
+                  + ([f"{top} ceiling − paper's best"] if top is not None else []))
     for s in stages:
         row = [str(s)]
         for d in cols:
             m, _ = mean_std(agg.get((s, d), []))
             row.append("–" if math.isnan(m) else f"{m - PAPER_TABLE1[d][s - 1]:+.3f}")
-        if oracle:
-            m, _ = mean_std(agg.get((s, "oracle"), []))
+        if top is not None:
+            m, _ = mean_std(agg.get((s, top), []))
             best = max(v[s - 1] for v in PAPER_TABLE1.values())
             row.append("–" if math.isnan(m) else f"{m - best:+.3f}")
         table.rows.append(row)
@@ -155,8 +158,11 @@ def paper_difference_table(
     return table
 
 
-#: Detectors that are not learned models (the references).
-REFERENCES = ("oracle", "matched-filter")
+def references(detectors: list[str]) -> list[str]:
+    """The detectors that are not learned models (``registry.ROLES``): the ceiling first, then
+    the classical references."""
+    return sorted((d for d in detectors if registry.role(d) != "learned"),
+                  key=lambda d: -registry.ROLES.index(registry.role(d)))
 
 
 def paper_gap_table(
@@ -164,8 +170,8 @@ def paper_gap_table(
 ) -> Table:
     """Per stage: the paper's best model, our best learned detector, the references."""
     agg = aggregate(records, "auc_instance")
-    learned = [d for d in detectors if d not in REFERENCES]
-    refs = [d for d in REFERENCES if d in detectors]
+    refs = references(detectors)
+    learned = [d for d in detectors if d not in refs]
     table = Table(title="Where we stand: the paper's best against ours (auc_instance)",
                   header=["stage", "paper's best", "our best learned detector", "ours − paper",
                           *refs])
