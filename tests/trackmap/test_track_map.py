@@ -186,3 +186,16 @@ def test_reading_a_scan_folder(tmp_path: Path) -> None:
         {"position_first_m": None, "position_last_m": None}))
     with pytest.raises(RailwatchError, match="no track position"):
         tm.read_scan(tmp_path)
+
+
+def test_make_map_is_the_command_s_one_call() -> None:
+    """``make_map`` gives what the map functions give, names its rule, and refuses a
+    ``--min-events`` that is neither a number nor auto in one line."""
+    truth = np.sort(np.random.default_rng(7).uniform(50, 4950, 12))
+    passes = passes_over(truth, 6, 0.8, 1.0, 5_000)
+    votes = tm.maps.make_map(passes, "votes", min_share=0.3)
+    direct = tm.reported(tm.track_map(passes, 2.0, 50.0), 0.3, len(passes))
+    assert [p.position_m for p in votes.reported] == [p.position_m for p in direct]
+    assert votes.fused is None and votes.rule == "seen on >= 0.3 of the passes that covered them"
+    with pytest.raises(RailwatchError, match="--min-events some: give a number of passes"):
+        tm.maps.make_map(passes, "fused", min_events="some")

@@ -4,7 +4,6 @@ on Ray) and ``track-map`` (events of repeated passes -> confirmed locations)."""
 from __future__ import annotations
 
 import glob
-import math
 from pathlib import Path
 
 import click
@@ -172,49 +171,18 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     if plot is not None:
         writable_file(plot)
     passes = tm.read_scan(events_dir)
-    truth_m = em.read_truth(truth) if truth else None
-    fused = None
-    if method == "fused":
-        if min_events.strip().lower() == "auto":
-            need = tm.min_events_for(passes)
-        elif min_events.strip().isdigit():
-            need = int(min_events)
-        else:
-            raise RailwatchError(f"--min-events {min_events}: give a number of passes (0, 1, "
-                                 "...) or auto")
-        locations, fused = tm.fused_map(passes, tolerance_m, max_offset_m or None,
-                                        sides=sides, min_events=need)
-        reported = tm.reported_fused(locations, false_per_km)
-        rule = (f"at most {false_per_km:g} such places per km by chance"
-                + (f", an event on {need} pass{'es' if need > 1 else ''} at least" if need
-                   else "") + f"; sides: {fused.sides}" + (" (auto)" if sides == "auto" else ""))
-    else:
-        locations = tm.track_map(passes, tolerance_m, max_offset_m or None)
-        reported = tm.reported(locations, min_share, len(passes))
-        rule = f"seen on >= {min_share:g} of the passes that covered them"
-    tm.write_map(out, locations)
+    truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
+    made = tm.maps.make_map(passes, method, tolerance_m, max_offset_m, sides, min_events,
+                            false_per_km, min_share)
+    tm.write_map(out, made.places)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
 
-        save_figure(track_map_figure(locations, passes, reported, truth_m, fused,
-                                     None if fused is None else fused.level(false_per_km)),
-                    plot)
+        save_figure(track_map_figure(made.places, passes, made.reported, truth_m, made.fused,
+                                     made.level), plot)
     line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
-            f"{len(locations)} places, {len(reported)} reported ({rule})")
-    if truth_m is not None:
-        assert truth is not None
-        lo, hi = tm.covered_range(passes)
-        covered = em.on_stretch(truth_m, lo, hi)
-        beside = truth.with_name("track.features.csv")  # simulate's features: not defects
-        features = em.read_truth(beside) if beside.is_file() and beside != truth else None
-        s = em.score_locations(reported, covered, hi - lo, tolerance_m, features)
-        line += (f"; against the {len(covered)} defects of {truth.name} on the covered "
-                 f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "
-                 f"±{tolerance_m:g} m, {s['false_per_km']:.2f} false locations per km")
-        if features is not None:
-            line += f" ({s['on_features']:.0f} more on the features of {beside.name})"
-        if not math.isnan(s["frame_offset_m"]):
-            line += (f"; the places sit {s['frame_offset_m']:+.1f} m from the defects in the "
-                     f"median (the map's frame: odometry's common error), recall "
-                     f"{s['recall_frame']:.0%} with it taken out")
+            f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
+    if truth is not None:
+        line += "; " + em.against_truth(made.reported, truth, *tm.covered_range(passes),
+                                        tolerance_m)
     info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))

@@ -67,3 +67,26 @@ def score_locations(locations: Sequence[Place], truth: NDArray[np.float64], leng
             "false_per_km": s.false_per_km, "locations": float(len(locations)),
             "on_features": float(s.on_features), "frame_offset_m": s.frame_offset_m,
             "recall_frame": float(framed.found.mean()) if len(truth) else math.nan}
+
+
+def against_truth(reported: Sequence[Place], truth: str | os.PathLike[str], lo: float, hi: float,
+                  tolerance_m: float = 2.0) -> str:
+    """``track-map --truth``, in words: the recall of the true defects of ``truth`` on the
+    covered stretch ``[lo, hi]`` (m) by ``reported`` within ``tolerance_m``, the false places per
+    km (a ``track.features.csv`` beside the truth counts its features apart) and the frame's
+    offset with the recall it hides."""
+    path = Path(truth)
+    covered = on_stretch(read_truth(path), lo, hi)
+    beside = path.with_name("track.features.csv")  # simulate's features: not defects
+    features = read_truth(beside) if beside.is_file() and beside != path else None
+    s = score_locations(reported, covered, hi - lo, tolerance_m, features)
+    line = (f"against the {len(covered)} defects of {path.name} on the covered "
+            f"{(hi - lo) / 1000:.1f} km: recall {s['recall']:.0%} within "
+            f"±{tolerance_m:g} m, {s['false_per_km']:.2f} false locations per km")
+    if features is not None:
+        line += f" ({s['on_features']:.0f} more on the features of {beside.name})"
+    if not math.isnan(s["frame_offset_m"]):
+        line += (f"; the places sit {s['frame_offset_m']:+.1f} m from the defects in the "
+                 f"median (the map's frame: odometry's common error), recall "
+                 f"{s['recall_frame']:.0%} with it taken out")
+    return line

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -285,3 +286,45 @@ def covered_range(passes: list[PassEvents]) -> tuple[float, float]:
     if not passes:
         return 0.0, 0.0
     return min(p.covered[0] for p in passes), max(p.covered[1] for p in passes)
+
+
+@dataclass
+class TrackMap:
+    """A map of repeated passes (:func:`make_map`): every place, the reported ones, the rule
+    that reported them (in words), and for the fused map its evidence and reporting level."""
+
+    places: list[Location]
+    reported: list[Location]
+    rule: str
+    fused: fusion.Fused | None = None
+    level: float | None = None
+
+
+def make_map(passes: list[PassEvents], method: str = "fused", tolerance_m: float = 2.0,
+             max_offset_m: float | None = 50.0, sides: str = "auto", min_events: str = "auto",
+             false_per_km: float = 0.1, min_share: float = 0.3) -> TrackMap:
+    """``railwatch track-map``: the ``fused`` map (:func:`fused_map`, places reported at most
+    ``false_per_km`` times per km by chance, with an event on ``min_events`` passes: a number,
+    or ``auto``, :func:`min_events_for`) or the ``votes`` map (:func:`track_map`, places seen on
+    ``min_share`` of the passes that covered them). ``max_offset_m`` None or 0: any offset."""
+    if method == "votes":
+        places = track_map(passes, tolerance_m, max_offset_m or None)
+        return TrackMap(places, reported(places, min_share, len(passes)),
+                        f"seen on >= {min_share:g} of the passes that covered them")
+    if method != "fused":
+        raise RailwatchError(f"--method {method}: use fused or votes")
+    text = min_events.strip().lower()
+    if text == "auto":
+        need = min_events_for(passes)
+    elif text.isdigit():
+        need = int(text)
+    else:
+        raise RailwatchError(f"--min-events {min_events}: give a number of passes (0, 1, "
+                             "...) or auto")
+    places, fused = fused_map(passes, tolerance_m, max_offset_m or None, sides=sides,
+                              min_events=need)
+    rule = (f"at most {false_per_km:g} such places per km by chance"
+            + (f", an event on {need} pass{'es' if need > 1 else ''} at least" if need else "")
+            + f"; sides: {fused.sides}" + (" (auto)" if sides == "auto" else ""))
+    return TrackMap(places, reported_fused(places, false_per_km), rule, fused,
+                    fused.level(false_per_km))
