@@ -15,7 +15,7 @@ SHOT ?= docs/report-screenshot.png
 .PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-track-map-loss bench-track-map-fusion bench-track-map-frame bench-track-map-sides bench-physics bench-matched-filter-ridge bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
 	bench-standard screenshot clean
 
-run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, ~10 min on 2 cores)
+run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, 12.7 min on 2 cores from a fresh clone)
 	$(BIN)/railwatch bench --preset quick --out $(OUT)
 
 data: $(STAMP)  ## generate all eight stages (3,000 windows each) and draw Figure 1
