@@ -98,3 +98,19 @@ def test_level_peaks_and_templates() -> None:
     assert peaks(zmap, apart_m=5.0).tolist()[:2] == [6.0, 4.0]  # 100 and 110: one place
     bank = weld_templates()
     assert len(bank) == 12 and min(float(t.min()) for t in bank) == pytest.approx(-1e-3, rel=0.02)
+
+
+def test_the_cross_spectrum_s_phase() -> None:
+    """The other rail a few samples behind: only the right phase of the cross-spectrum cancels
+    the shared profile (a conjugated one would add it instead)."""
+    rng = np.random.default_rng(3)
+    n = 1 << 15
+    shared = ar1(n + 8, rng) * 10
+    z = np.stack([shared[8:] + rng.normal(size=n), shared[5:n + 5] + rng.normal(size=n)])
+    spectra = rail_spectra([z], dx=DX, segment=1024)
+    assert np.median(np.abs(spectra.s12.imag) / spectra.s11) > 0.05  # a delay: not real
+    shape = np.sin(2 * np.pi * np.arange(50) / 50) * 3
+    z[0, 20000:20050] += shape
+    both = whitened_scan(z, spectra, [shape], band_m=WIDE)[0, 20000]
+    one = whitened_scan(z, spectra, [shape], band_m=WIDE, both_rails=False)[0, 20000]
+    assert both > 5 > one

@@ -69,8 +69,8 @@ def rail_spectra(profiles: Sequence[FloatArray], dx: float = BOUND_DX_M,
             raise RailwatchError(f"a profile must be (2, n) with n >= {segment}, not {z.shape}")
         f, s11 = welch(z[0], fs=1 / dx, nperseg=segment)
         _, s22 = welch(z[1], fs=1 / dx, nperseg=segment)
-        _, s12 = csd(z[0], z[1], fs=1 / dx, nperseg=segment)
-        acc.append((s11, s22, s12))
+        _, s21 = csd(z[0], z[1], fs=1 / dx, nperseg=segment)  # scipy: E[X₁* X₂]
+        acc.append((s11, s22, np.conj(s21)))
     s11, s22, s12 = (np.mean([a[i] for a in acc], axis=0) for i in range(3))
     half = 1 / (2 * dx)  # one-sided density (per cycle/m) -> power per DFT bin and sample
     return RailSpectra(np.asarray(f, dtype=float), np.asarray(s11.real * half),
