@@ -459,7 +459,7 @@ def main() -> None:
                 f"{np.mean([r['false_per_km'] for r in rows]):.2f} | "
                 f"{np.median(frame) if frame else float('nan'):+.1f} m |")
         lines.append("")
-    lines += track_allows(args.work, folders["GNSS-aided"], json_out["maps"]["GNSS-aided"])
+    lines += track_allows(args.work, list(SEEDS), json_out["maps"]["GNSS-aided"])
     # ---- POD
     lines += ["## Probability of detection (hit/miss, MIL-HDBK-1823A)\n",
               "a90 / a90/95 in mm of depth (steps: of height; corrugation: peak to trough); "
@@ -594,9 +594,9 @@ def geometry_bound(work: Path, test_seeds: list[int]) -> dict[str, Any]:
     return out
 
 
-def track_allows(work: Path, folders: list[Path], map_rows: list[dict[str, Any]]) -> list[str]:
-    """The page's section on the geometry bound: what the track allows of the welds."""
-    seeds = [int(f.name[5:].split("-")[0]) for f in folders]
+def track_allows(work: Path, seeds: list[int], map_rows: list[dict[str, Any]]) -> list[str]:
+    """The page's section on the geometry bound: what the track allows of the welds of the
+    test tracks ``seeds``."""
     got = geometry_bound(work, seeds)
     lines = ["## What the track allows: welds\n",
              "The oracle above knows each pass's clean twin, the track's irregularity as drawn; "

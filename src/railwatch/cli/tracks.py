@@ -182,7 +182,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
                                      made.level), plot)
     line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
             f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
-    if truth is not None:
-        line += "; " + em.against_truth(made.reported, truth, *tm.covered_range(passes),
-                                        tolerance_m)
+    if truth is not None and truth_m is not None:
+        line += "; " + em.against_truth(made.reported, truth_m, truth,
+                                        *tm.covered_range(passes), tolerance_m)
     info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))

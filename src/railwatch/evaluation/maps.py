@@ -69,14 +69,15 @@ def score_locations(locations: Sequence[Place], truth: NDArray[np.float64], leng
             "recall_frame": float(framed.found.mean()) if len(truth) else math.nan}
 
 
-def against_truth(reported: Sequence[Place], truth: str | os.PathLike[str], lo: float, hi: float,
+def against_truth(reported: Sequence[Place], truth: NDArray[np.float64],
+                  path: str | os.PathLike[str], lo: float, hi: float,
                   tolerance_m: float = 2.0) -> str:
-    """``track-map --truth``, in words: the recall of the true defects of ``truth`` on the
-    covered stretch ``[lo, hi]`` (m) by ``reported`` within ``tolerance_m``, the false places per
-    km (a ``track.features.csv`` beside the truth counts its features apart) and the frame's
-    offset with the recall it hides."""
-    path = Path(truth)
-    covered = on_stretch(read_truth(path), lo, hi)
+    """``track-map --truth``, in words: the recall of the true defects ``truth`` (read from
+    ``path`` by :func:`read_truth`) on the covered stretch ``[lo, hi]`` (m) by ``reported``
+    within ``tolerance_m``, the false places per km (a ``track.features.csv`` beside the truth
+    counts its features apart) and the frame's offset with the recall it hides."""
+    path = Path(path)
+    covered = on_stretch(truth, lo, hi)
     beside = path.with_name("track.features.csv")  # simulate's features: not defects
     features = read_truth(beside) if beside.is_file() and beside != path else None
     s = score_locations(reported, covered, hi - lo, tolerance_m, features)
