@@ -12,8 +12,7 @@ OUT ?= runs/quick
 REPORT ?= docs/results/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
-.PHONY: run data test test-latest lock lint bench-generate bench-detectors bench-bounds bench-recordings bench-recordings-nuisance bench-track-map bench-track-map-loss bench-track-map-fusion bench-track-map-frame bench-track-map-sides bench-physics bench-matched-filter-ridge bench-reliability bench-residual-glr bench-context-glr bench-context-glr-speed bench-context-glr-swap \
-	bench-standard screenshot clean
+.PHONY: run data test test-latest lock lint benchmarks bench-standard screenshot clean
 
 run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, 12.7 min on 2 cores from a fresh clone)
 	$(BIN)/railwatch bench --preset quick --out $(OUT)
@@ -46,59 +45,14 @@ lock: $(STAMP)  ## regenerate requirements.lock with the newest releases (then r
 	@echo "wrote $(LOCK): commit it with the test run that passed on it"
 
 lint: $(STAMP)  ## developer loop: lint and type-check
-	$(BIN)/ruff check src tests
+	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/mypy
 
-bench-generate: $(STAMP)  ## time `railwatch generate` for every stage at n = 100,000
-	$(BIN)/python benchmarks/generate_speed.py
+benchmarks:  ## list the research benchmarks: what each measures, its page, its time, what it needs first
+	@$(BIN)/python -m benchmarks
 
-bench-detectors: $(STAMP)  ## stage-1 AUC, fit and scoring time of every detector
-	$(BIN)/python benchmarks/detectors.py
-
-bench-bounds: $(STAMP)  ## stage 1: a supervised bound per representation, next to its detector
-	$(BIN)/python benchmarks/representation_bounds.py
-
-bench-recordings: $(STAMP)  ## detection quality, real-time factor and onboard latency on recordings
-	$(BIN)/python benchmarks/recordings.py --work runs/recordings
-
-bench-recordings-nuisance: $(STAMP)  ## train on two runs, detect on a third: stage-5/8-like runs, loud stretches
-	$(BIN)/python benchmarks/recordings_nuisance.py --work runs/recordings-nuisance
-
-bench-track-map: $(STAMP)  ## the track map of 10-km tracks against 1, 2, 5, 10 passes; scan throughput (~40 min)
-	$(BIN)/python benchmarks/track_map.py --work runs/bench-track-map
-
-bench-track-map-loss: $(STAMP)  ## where the track map loses defects: oracle, per pass, alignment (~30 min, after bench-track-map)
-	$(BIN)/python benchmarks/track_map_loss.py --work runs/bench-track-map
-
-bench-track-map-fusion: $(STAMP)  ## what each rule of the fused map adds, on development tracks (~15 min, after bench-track-map)
-	$(BIN)/python benchmarks/track_map_fusion.py --work runs/bench-track-map
-
-bench-track-map-frame: $(STAMP)  ## the fused map's frame and the check of the alignment's moves, 8 development tracks (~30 min, after bench-track-map)
-	$(BIN)/python benchmarks/track_map_frame.py --work runs/bench-track-map
-
-bench-track-map-sides: $(STAMP)  ## what the fused map sums over the passes: the sides of the vehicle, 8 development tracks (~15 min, after bench-track-map-frame and track_map_wheel.py)
-	$(BIN)/python benchmarks/track_map_sides.py --work runs/bench-track-map
-
-bench-physics: $(STAMP)  ## physics tracks at field scale: one pass, the map, POD, beside the oracle (~40 min)
-	$(BIN)/python benchmarks/physics.py --work runs/physics
-
-bench-matched-filter-ridge: $(STAMP)  ## the matched filter's ridge on benchmark windows and on windows made unlike ours (~5 min)
-	$(BIN)/python benchmarks/matched_filter_ridge.py
-
-bench-reliability: $(STAMP)  ## the fault and fuzz tests, counted into docs/results/reliability.md
-	$(BIN)/python benchmarks/reliability.py
-
-bench-residual-glr: $(STAMP)  ## stages 1-8: GLR scoring of the true and of cnn-ae's residual
-	$(BIN)/python benchmarks/residual_glr.py
-
-bench-context-glr: $(STAMP)  ## stages 1,4,5,7,8: context-glr's prediction error and its supervised bound
-	$(BIN)/python benchmarks/context_glr.py
-
-bench-context-glr-swap: $(STAMP)  ## stages 5, 7: context-glr's prediction and noise scale swapped for the truth (~3 min)
-	$(BIN)/python benchmarks/context_glr_swap.py 5,7
-
-bench-context-glr-speed: $(STAMP)  ## context-glr's width against AUC, fit, scoring and ONNX time (~15 min)
-	$(BIN)/python benchmarks/context_glr_speed.py
+bench-%: $(STAMP)  ## run one: make bench-physics = python -m benchmarks physics (ARGS='...': its options)
+	$(BIN)/python -m benchmarks $(subst -,_,$*) $(ARGS)
 
 bench-standard: $(STAMP)  ## the standard benchmark (3 seeds, 3,000 test windows; ~1 h on 2 cores)
 	$(BIN)/railwatch bench --preset standard --out runs/standard

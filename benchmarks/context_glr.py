@@ -1,6 +1,6 @@
 """Where context-glr loses against the oracle: its prediction of the normal signal, or the scoring.
 
-    python benchmarks/context_glr.py [STAGES]     # make bench-context-glr (default 1,4,5,7,8)
+    python -m benchmarks context_glr [STAGES]     # make bench-context-glr (default 1,4,5,7,8)
 
 Per stage, at the quick preset's sizes (2,000 training and 1,000 test windows, seeds 0 / 1), with
 context-glr at its default size:
@@ -36,14 +36,20 @@ from railwatch.scoring.residual import ResidualGLR
 from railwatch.synthetic import generate
 from railwatch.windows import WindowSet
 
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/context-glr.md"
+MINUTES = 10
+
 N_TRAIN, N_TEST = 2000, 1000
 
 
 def error_ratio(det: ContextGLR, X: np.ndarray, nuisance: np.ndarray, noise: np.ndarray) -> float:
     """rms(μ − nuisance) / rms(noise std), both per channel in normalised units."""
     std = det.stats_["input_std"]
-    x = det._normalized(X.astype(np.float32))
-    mu = x - det._raw_all(x)["residual"]
+    x = det.normalized(X.astype(np.float32))
+    mu = x - det.raw_outputs(x)["residual"]
     truth = (nuisance - det.stats_["input_mean"]) / std
     return float(np.sqrt(np.mean((mu - truth) ** 2)) / np.sqrt(np.mean((noise / std) ** 2)))
 
@@ -107,7 +113,7 @@ def main() -> None:
     lines = [
         "# context-glr: the prediction or the scoring?",
         "",
-        f"`make bench-context-glr` (`python benchmarks/context_glr.py`), "
+        f"`make bench-context-glr` (`python -m benchmarks context_glr`), "
         f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores, torch {torch.__version__}. "
         f"{N_TRAIN:,} training / {N_TEST:,} test windows (seeds 0 / 1), context-glr at its "
         "default size (width 64, 25 epochs).",

@@ -1,6 +1,6 @@
 """context-glr's speed against its accuracy: the network's width, on six channels.
 
-    python benchmarks/context_glr_speed.py [WIDTHS]     # make bench-context-glr-speed
+    python -m benchmarks context_glr_speed [WIDTHS]     # make bench-context-glr-speed
 
 The speed targets of the noise-robust detector issue are: score 3,000 six-channel windows in
 <= 2 s at batch 32 on 2 cores, fit 3,000 of them in <= 4 min, and <= 2 ms per 2-s window in
@@ -40,6 +40,12 @@ from railwatch.report.figures import save_figure
 from railwatch.report.pages import write_markdown
 from railwatch.synthetic import generate
 
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/context-glr-speed.md"
+MINUTES = 15
+
 STAGE, N_TRAIN, N_TEST, SEEDS = 7, 3000, 3000, (2468, 2469)
 WIDTHS = (16, 24, 32, 48, 64)
 ONNX_WINDOWS = 320
@@ -52,7 +58,7 @@ def measure(width: int, train: np.ndarray, test: np.ndarray, y: np.ndarray) -> d
     det.fit(train)
     fit_s = time.perf_counter() - started
     score_s, scores = timed_scores(det, test, repeats=3)
-    raw = det._raw_all(det._normalized(test))
+    raw = det.raw_outputs(det.normalized(test))
     scan_s, _ = timed(lambda: det.scores_from_raw(raw, extras=False), repeats=3)
     with tempfile.TemporaryDirectory() as tmp:
         export_onnx(det, Path(tmp) / "model.onnx")
@@ -74,7 +80,8 @@ def measure(width: int, train: np.ndarray, test: np.ndarray, y: np.ndarray) -> d
     }
 
 
-def main(widths: tuple[int, ...]) -> None:
+def main() -> None:
+    widths = tuple(int(w) for w in sys.argv[1].split(",")) if len(sys.argv) > 1 else WIDTHS
     train, test = generate(STAGE, N_TRAIN, SEEDS[0]), generate(STAGE, N_TEST, SEEDS[1])
     rows = []
     for w in widths:
@@ -85,7 +92,7 @@ def main(widths: tuple[int, ...]) -> None:
               f"{r['onnx_ms']:.2f} ms/window", flush=True)
     lines = [
         "# context-glr: speed against accuracy, by network width", "",
-        f"`python benchmarks/context_glr_speed.py` (`make bench-context-glr-speed`), "
+        f"`python -m benchmarks context_glr_speed` (`make bench-context-glr-speed`), "
         f"{datetime.date.today().isoformat()}, {cpu_name()}, torch {torch.__version__} "
         f"({torch.get_num_threads()} threads), CPU only. Stage {STAGE} (six channels), "
         f"{N_TRAIN:,} training / {N_TEST:,} test windows (seeds {SEEDS[0]} / {SEEDS[1]}, not the "
@@ -118,4 +125,4 @@ def main(widths: tuple[int, ...]) -> None:
 
 
 if __name__ == "__main__":
-    main(tuple(int(w) for w in sys.argv[1].split(",")) if len(sys.argv) > 1 else WIDTHS)
+    main()

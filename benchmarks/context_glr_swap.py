@@ -1,7 +1,7 @@
 """Where context-glr loses against the oracle: its prediction of the normal signal or its noise
 scale, each swapped for the generator's truth on the same trained network.
 
-    python benchmarks/context_glr_swap.py [STAGES]   # make bench-context-glr-swap (default 5)
+    python -m benchmarks context_glr_swap [STAGES]   # make bench-context-glr-swap (default 5,7)
 
 Per stage, at the quick preset's sizes and context-glr's quick config (width 32, 8 epochs;
 2,000 training windows of seed 0, 1,000 test windows of seed 1), the scan of the standardised
@@ -30,6 +30,12 @@ from railwatch.report.pages import write_markdown
 from railwatch.scoring.glr import box_sums, cumulative
 from railwatch.scoring.residual import ResidualGLR
 from railwatch.synthetic import generate
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/context-glr-swap.md"
+MINUTES = 3
 
 N_TRAIN, N_TEST = 2000, 1000
 CONFIG = {"epochs": 8, "width": 32, "progress": False}
@@ -88,7 +94,7 @@ def stage_rows(stage: int) -> tuple[list[str], str]:
 
 
 def main() -> None:
-    stages = [int(v) for v in sys.argv[1].split(",")] if len(sys.argv) > 1 else [5]
+    stages = [int(v) for v in sys.argv[1].split(",")] if len(sys.argv) > 1 else [5, 7]
     table, errors = [], []
     for stage in stages:
         rows, error_row = stage_rows(stage)
@@ -97,7 +103,7 @@ def main() -> None:
     lines = [
         "# context-glr: prediction or noise scale? (each swapped for the truth)",
         "",
-        f"Command: `python benchmarks/context_glr_swap.py {','.join(map(str, stages))}`, "
+        f"Command: `python -m benchmarks context_glr_swap {','.join(map(str, stages))}`, "
         f"{datetime.date.today().isoformat()}, {cpu_name()}, torch {torch.__version__}. "
         f"context-glr {CONFIG['width']} wide, {CONFIG['epochs']} epochs (the quick preset's), "
         f"{N_TRAIN:,} training windows (seed 0), {N_TEST:,} test windows (seed 1). "

@@ -1,5 +1,5 @@
 """Time `railwatch generate --n 100000` for every stage (file write included) and print a
-Markdown table with the date, CPU and thread count. Run: `make bench-generate`."""
+Markdown table with the date, CPU and thread count. Run: `make bench-generate-speed`."""
 
 from __future__ import annotations
 
@@ -12,6 +12,12 @@ import time
 from pathlib import Path
 
 from railwatch.machine import cpu_name
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = None
+MINUTES = 3
 
 
 def main() -> None:
@@ -26,7 +32,7 @@ def main() -> None:
             seconds = time.perf_counter() - start
             rows.append((stage, seconds, out.stat().st_size / 2**20))
             out.unlink()
-    print(f"`make bench-generate` on {datetime.date.today()}, {cpu_name()}, "
+    print(f"`make bench-generate-speed` on {datetime.date.today()}, {cpu_name()}, "
           f"{len(os.sched_getaffinity(0))} cores; n = {n:,} windows per stage, wall time of the "
           "whole command (start-up and the .npz write included).\n")
     print("| stage | seconds | file (MiB) |\n|---|---|---|")

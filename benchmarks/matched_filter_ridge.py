@@ -15,7 +15,7 @@ per-pass loss came from"). Here:
    windows. Trained on 2,000 defect-free windows, tested on 2,000: instance ROC-AUC and the
    share of defects that are the top score of their window (outside ±10 samples).
 
-Run: `python benchmarks/matched_filter_ridge.py` (about 5 minutes on 2 cores).
+Run: `python -m benchmarks matched_filter_ridge` (about 5 minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -23,11 +23,18 @@ from __future__ import annotations
 import argparse
 import datetime
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 from scipy.signal import lfilter
+
+from benchmarks.common import command
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/matched-filter-ridge.md"
+MINUTES = 5
 
 RIDGES = (1e-6, 1e-2, 0.1, 1.0)
 N_TRAIN, N_TEST = 2000, 2000
@@ -71,7 +78,7 @@ def unlike_ours(n: int, seed: int, defects: bool) -> tuple[np.ndarray, np.ndarra
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/results/matched-filter-ridge.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     args = parser.parse_args()
     from sklearn.metrics import roc_auc_score
 
@@ -109,7 +116,7 @@ def main() -> None:
     lines = [
         "# The matched filter's ridge on data it was not chosen on",
         "",
-        f"Command: `python benchmarks/matched_filter_ridge.py {' '.join(sys.argv[1:])}`, "
+        f"Command: `{command(__name__)}`, "
         f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. " + " ".join(doc[1].split()),
         "",
         on_benchmark,

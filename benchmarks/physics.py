@@ -41,20 +41,28 @@ Run: `make bench-physics` (about 40 minutes on 2 cores; every step is kept in --
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import json
 import math
-import os
 import re
 import shutil
-import subprocess
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from benchmarks.common import command, railwatch, read_csv
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/physics.md"
+MINUTES = 40
+#: The CLI in a child process, what it reported captured (detect's line gives the speed).
+cli = partial(railwatch, quiet=False, capture=True)
 
 SEEDS = (200, 201, 202)
 PASSES, TRAIN = 12, 2
@@ -62,19 +70,6 @@ COUNTS = (1, 2, 5, 10)
 KINDS = ("squat", "joint", "weld", "step", "corrugation")
 POSITIONING = {"GNSS-aided": 3.0, "odometry alone": 5.0}  # tolerance (m)
 SPEED_BANDS = ((10.0, 20.0), (20.0, 30.0))
-ONE_CORE = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-
-
-def railwatch(*args: str, one_core: bool = False) -> str:
-    """Run the CLI in a child process; its standard error (what it reported)."""
-    env = {**os.environ, **(ONE_CORE if one_core else {})}
-    cmd = [sys.executable, "-m", "railwatch.cli", *args]
-    if one_core:
-        cmd = ["taskset", "-c", "0", *cmd]
-    done = subprocess.run(cmd, env=env, check=True, capture_output=True, text=True)
-    return done.stderr
-
-
 def inventory():  # type: ignore[no-untyped-def]
     from railwatch.physics.features import Inventory
 
@@ -105,20 +100,15 @@ def gnss_aided(folder: Path) -> Path:
     return out
 
 
-def read_csv(path: Path) -> list[dict[str, Any]]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
 def scanned(folder: Path) -> Path:
     """The README's workflow: train on passes 1-2 with defaults, scan every pass."""
     model, scan = folder / "model", folder / "scan"
     if not (model / "recording.json").exists():
-        railwatch("train", "--detector", "matched-filter", "--recordings",
+        cli("train", "--detector", "matched-filter", "--recordings",
                   *[str(folder / f"pass{i + 1:02d}.parquet") for i in range(TRAIN)],
                   "--layout", str(folder / "layout.toml"), "--out", str(model))
     if not (scan / "events.csv").exists():
-        railwatch("scan", "--model", str(model), "--recordings",
+        cli("scan", "--model", str(model), "--recordings",
                   *[str(folder / f"pass{i + 1:02d}.parquet") for i in range(PASSES)],
                   "--out", str(scan))
     return scan
@@ -144,7 +134,7 @@ def oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
     whitened by the sensor noise, windows as the field model's, its threshold at the
     field-scale model's windows per minute of pure sensor noise. Kept in the track's folder
     (they do not depend on the positions)."""
-    from railwatch.recordings.pipeline import EVENTS_PER_MINUTE
+    from railwatch.detection.pipeline import EVENTS_PER_MINUTE
 
     kept = folder.parent / folder.name.replace("-gnss", "") / \
         f"{name}.oracle-{EVENTS_PER_MINUTE['field']:g}pm.json"
@@ -156,11 +146,11 @@ def oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
 
 
 def _oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
+    from railwatch.detection import pipeline
+    from railwatch.detection.stream import EventTracker, merge_max
     from railwatch.detectors import create
-    from railwatch.recordings import pipeline
     from railwatch.recordings.prepare import frame
     from railwatch.recordings.readers import Recording
-    from railwatch.recordings.stream import EventTracker, merge_max
 
     rm = pipeline.load_recording_model(folder / "model")
     layout, prep = rm.layout, rm.preparation
@@ -261,7 +251,7 @@ def maps(folder: Path, tolerance: float, oracle_found: dict[str, dict[int, bool]
             out = folder / "maps" / f"n{n}-{k}" / "map.csv"
             if not out.exists():  # a map is kept: the scan it was made of is kept too
                 sub = subset(scan, names, out.parent)
-                railwatch("track-map", "--events", str(sub), "--out", str(out))
+                cli("track-map", "--events", str(sub), "--out", str(out))
             places = [float(r["position_m"]) for r in read_csv(out)
                       if float(r["false_per_km"]) <= 0.1]
             km = json.loads((folder / "physics.json").read_text())["world"]["length_m"] / 1000
@@ -372,7 +362,7 @@ def main() -> None:
     global SEEDS, PASSES, COUNTS
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--work", type=Path, default=Path("runs/physics"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/physics.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     parser.add_argument("--seeds", default="200,201,202",
                         help="tracks (the development tracks are 100 and 101)")
     parser.add_argument("--passes", type=int, default=12, help="passes per track")
@@ -397,7 +387,7 @@ def main() -> None:
     one = single_pass(folders["GNSS-aided"])
     kinds = {r["kind"] for r in one["crossings"]}
     lines = ["# The physics world at field scale\n",
-             f"Command: `python benchmarks/physics.py {' '.join(sys.argv[1:])}`, "
+             f"Command: `{command(__name__)}`, "
              f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
              + " ".join(__doc__.split("\n\n")[1].split()), ""]
     lines += world_checks()
@@ -514,9 +504,9 @@ def main() -> None:
     long = args.work / "speed-10km"
     if not (long / "track.defects.csv").exists():
         write_world(long, 1, World(length_m=10_000.0), seed=998)
-    said = railwatch("detect", "--model", str(folders["odometry alone"][0] / "model"),
-                     "--recording", str(long / "pass01.parquet"), "--out",
-                     str(args.work / "speed.csv"), one_core=True)
+    said = cli("detect", "--model", str(folders["odometry alone"][0] / "model"),
+               "--recording", str(long / "pass01.parquet"), "--out",
+               str(args.work / "speed.csv"), one_core=True).stderr
     factor = re.search(r"\((\d+)x real time\)", said)
     lines += ["## Speed\n",
               "`detect` (matched filter, defaults) on one core (`taskset -c 0`, one thread), "
@@ -657,7 +647,7 @@ def made_differently(work: Path, out: Path) -> None:
     from railwatch.physics.world import World
 
     lines = ["# The physics world made differently\n",
-             f"Command: `python benchmarks/physics.py --made-differently`, "
+             f"Command: `python -m benchmarks physics --made-differently`, "
              f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. The README's workflow "
              "with defaults (`train --detector matched-filter` on passes 1-2, `scan`, "
              "`track-map` of passes 3-7, odometry alone, ±5 m) on one 5-km track per world "
@@ -683,11 +673,11 @@ def made_differently(work: Path, out: Path) -> None:
                     (folder / f.name).symlink_to(f.resolve())
         model, scan = folder / "model", folder / "scan"
         if not (model / "recording.json").exists():
-            railwatch("train", "--detector", "matched-filter", *flags, "--recordings",
+            cli("train", "--detector", "matched-filter", *flags, "--recordings",
                       str(folder / "pass01.parquet"), str(folder / "pass02.parquet"),
                       "--layout", str(folder / "layout.toml"), "--out", str(model))
         if not (scan / "events.csv").exists():
-            railwatch("scan", "--model", str(model), "--recordings",
+            cli("scan", "--model", str(model), "--recordings",
                       *[str(folder / f"pass{i:02d}.parquet") for i in range(1, 8)],
                       "--out", str(scan))
         found: dict[str, list[bool]] = {}
@@ -702,7 +692,7 @@ def made_differently(work: Path, out: Path) -> None:
             for r in rows:
                 found.setdefault(group_of(r), []).append(s.found[int(r["defect"])])
         sub = subset(scan, [f"pass{i:02d}" for i in range(3, 8)], folder / "map5")
-        railwatch("track-map", "--events", str(sub), "--out", str(sub / "map.csv"))
+        cli("track-map", "--events", str(sub), "--out", str(sub / "map.csv"))
         places = [float(r["position_m"]) for r in read_csv(sub / "map.csv")
                   if float(r["false_per_km"]) <= 0.1]
         items = read_csv(folder / "track.defects.csv")

@@ -16,49 +16,19 @@ import argparse
 import datetime
 import json
 import os
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ONE_CORE = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+from benchmarks.common import match, railwatch
 
-
-def railwatch(*args: str, one_core: bool = False) -> tuple[float, float]:
-    """Run the CLI in a child process; (wall seconds, peak resident MiB of that child)."""
-    env = {**os.environ, **(ONE_CORE if one_core else {})}
-    with tempfile.NamedTemporaryFile(suffix=".txt") as peak_file:
-        cmd = ["/usr/bin/time", "-f", "%M", "-o", peak_file.name, sys.executable, "-m",
-               "railwatch.cli", "-q", *args]
-        if one_core:
-            cmd = ["taskset", "-c", "0", *cmd]
-        start = time.perf_counter()
-        subprocess.run(cmd, env=env, check=True)
-        wall = time.perf_counter() - start
-        peak_kib = float(Path(peak_file.name).read_text().split()[-1])
-    return wall, peak_kib / 1024
-
-
-def match(events: list[dict], truth: Path, tol: float = 0.25) -> tuple[float, int, float]:  # type: ignore[type-arg]
-    import csv
-
-    with open(truth, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    centers = np.array([float(r["center_s"]) for r in rows])
-    peaks = np.array([e["peak_s"] for e in events])
-    found = [np.any(np.abs(peaks - c) <= tol) for c in centers]
-    false = [not np.any(np.abs(centers - p) <= tol) for p in peaks]
-    right_channel = []
-    for e in events:
-        j = int(np.argmin(np.abs(centers - e["peak_s"])))
-        if abs(centers[j] - e["peak_s"]) <= tol:
-            right_channel.append(rows[j]["channel"] == e["channel"])
-    channel = float(np.mean(right_channel)) if right_channel else float("nan")
-    return float(np.mean(found)), int(sum(false)), channel
-
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/recordings.md"
+MINUTES = 5
 
 def latency(fn, repeats: int = 300) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     """Median and 99th percentile milliseconds of fn() after 20 warm-up calls."""
@@ -74,10 +44,10 @@ def latency(fn, repeats: int = 300) -> tuple[float, float]:  # type: ignore[no-u
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", default="docs/results/recordings.md")
-    parser.add_argument("--work", default=None, help="folder for the runs (default: a temp dir)")
+    parser.add_argument("--out", default=PAGE)
+    parser.add_argument("--work", default="runs/recordings", help="folder for the runs (kept)")
     args = parser.parse_args()
-    work = Path(args.work or tempfile.mkdtemp(prefix="railwatch-rec-"))
+    work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     print(f"working in {work}", file=sys.stderr)
 
@@ -87,18 +57,19 @@ def main() -> None:
             railwatch("generate-run", "--minutes", str(minutes), "--seed", str(seed),
                       "--out", str(work / name))
     model = work / "model"
-    fit_s, _ = railwatch("train", "--detector", "aft-attention", "--recordings",
+    fit_s = railwatch("train", "--detector", "aft-attention", "--recordings",
                          str(work / "train1.parquet"), str(work / "train2.parquet"), "--layout",
-                         str(work / "train1.layout.toml"), "--out", str(model))
+                         str(work / "train1.layout.toml"), "--out", str(model)).wall_s
     print(f"trained in {fit_s:.1f} s", file=sys.stderr)
 
-    from railwatch.recordings.pipeline import read_events
+    from railwatch.detection.pipeline import read_events
 
     rows = []
     for name, minutes in (("test.parquet", 10), ("long.parquet", 60)):
         events_path = work / f"{name}.events.csv"
-        wall, peak = railwatch("detect", "--model", str(model), "--recording",
-                               str(work / name), "--out", str(events_path), one_core=True)
+        ran = railwatch("detect", "--model", str(model), "--recording", str(work / name),
+                        "--out", str(events_path), one_core=True)
+        wall, peak = ran.wall_s, ran.peak_mib
         events = read_events(events_path)
         found, false, channel = match(events, work / name.replace(".parquet", ".defects.csv"))
         rows.append((name, minutes, wall, minutes * 60 / wall, peak, len(events), found,
@@ -110,7 +81,7 @@ def main() -> None:
 
     # The same run at the detector's own threshold (the spec's contamination quantile, 0.10)
     # instead of the recordings rule (GumbelNull): why train --recordings fits its own.
-    from railwatch.recordings.pipeline import load_recording_model as _load
+    from railwatch.detection.pipeline import load_recording_model as _load
 
     own = _load(model)
     railwatch("detect", "--model", str(model), "--recording", str(work / "test.parquet"),
@@ -122,9 +93,9 @@ def main() -> None:
 
     torch.set_num_threads(1)
     from railwatch.deploy.onnx import export_onnx, load_onnx
-    from railwatch.recordings.pipeline import load_recording_model
+    from railwatch.detection.pipeline import load_recording_model
+    from railwatch.detection.stream import StreamingDetector
     from railwatch.recordings.readers import Recording
-    from railwatch.recordings.stream import StreamingDetector
 
     export_onnx(model, work / "model.onnx")
     rm = load_recording_model(model)

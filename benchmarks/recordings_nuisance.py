@@ -19,17 +19,22 @@ import argparse
 import datetime
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from recordings import match, railwatch  # benchmarks/recordings.py, beside this script
+from benchmarks.common import command, match, railwatch
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/recordings-nuisance.md"
+MINUTES = 20
 
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
          "stage 8": ["--stage", "8", "--loud-stretches"]}
 TRIOS = ((1, 2, 3), (4, 5, 6), (7, 8, 9))  # train, train, detect
-MINUTES = 10
+RUN_MINUTES = 10  # each run's length
 TARGET_FOUND, TARGET_FALSE = 0.90, 0.2
 #: Labels that train a registry detector with `train` flags (as in benchmarks/track_map.py).
 TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
@@ -38,14 +43,14 @@ TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 def run_file(work: Path, kind: str, seed: int) -> Path:
     path = work / f"{kind.replace(' ', '')}-seed{seed}.parquet"
     if not path.exists():
-        railwatch("generate-run", "--minutes", str(MINUTES), "--seed", str(seed), *KINDS[kind],
+        railwatch("generate-run", "--minutes", str(RUN_MINUTES), "--seed", str(seed), *KINDS[kind],
                   "--out", str(path))
     return path
 
 
 def model_threshold(model: Path) -> float:
     """The event threshold a recordings model was trained with (when it gave no event)."""
-    from railwatch.recordings.pipeline import load_recording_model
+    from railwatch.detection.pipeline import load_recording_model
 
     return load_recording_model(model).threshold
 
@@ -60,7 +65,7 @@ def best_at_false_rate(events: list[dict], truth: Path,  # type: ignore[type-arg
     for t in sorted({float(e["score"]) for e in events}):
         kept = [e for e in events if float(e["score"]) >= t]
         found, false, _ = match(kept, truth)
-        if false / MINUTES <= per_min and found > best[0]:
+        if false / RUN_MINUTES <= per_min and found > best[0]:
             best = (found, t)
     return best
 
@@ -75,8 +80,8 @@ def by_stretch(events: list[dict], truth: Path, kind: str,  # type: ignore[type-
 
     fs = 200.0  # the stretches depend on the track position only, not on the rate
     stage = int(KINDS[kind][1])
-    loud = synthesize_run(MINUTES * 60, seed=seed, fs=fs, stage=stage, loud_stretches=True)
-    quiet = synthesize_run(MINUTES * 60, seed=seed, fs=fs, stage=stage)
+    loud = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage, loud_stretches=True)
+    quiet = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage)
     # white noise differs only on rough sections; bursts, impulses and defects cancel
     is_loud = np.abs(loud.data - quiet.data).max(axis=1) > 0
 
@@ -93,22 +98,23 @@ def by_stretch(events: list[dict], truth: Path, kind: str,  # type: ignore[type-
         found = [bool(len(peaks)) and np.any(np.abs(peaks - c) <= 0.25) for c in mine]
         false = [p for p in peaks if at(p) == want and not np.any(np.abs(centers - p) <= 0.25)]
         out[f"found_{name}"] = float(np.mean(found)) if found else float("nan")
-        out[f"false_{name}"] = len(false) / (MINUTES * share) if share else float("nan")
+        out[f"false_{name}"] = len(false) / (RUN_MINUTES * share) if share else float("nan")
     out["loud_share"] = float(np.mean(is_loud))
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--out", default="docs/results/recordings-nuisance.md")
-    parser.add_argument("--work", default=None, help="folder for runs and models (kept)")
+    parser.add_argument("--out", default=PAGE)
+    parser.add_argument("--work", default="runs/recordings-nuisance",
+                        help="folder for runs and models (kept)")
     parser.add_argument("--detectors", default="context-glr,aft-attention")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="config override passed to every 'train'")
     args = parser.parse_args()
-    work = Path(args.work or tempfile.mkdtemp(prefix="railwatch-nuisance-"))
+    work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    from railwatch.recordings.pipeline import read_events
+    from railwatch.detection.pipeline import read_events
 
     rows = []
     for det in args.detectors.split(","):
@@ -120,13 +126,13 @@ def main() -> None:
                 fit_s = float("nan")
                 if not model.exists():
                     name, flags = TRAIN_FLAGS.get(det, (det, ()))
-                    fit_s, _ = railwatch("train", "--detector", name, *flags, "--recordings",
-                                         str(a), str(b), "--layout",
-                                         str(a.with_suffix(".layout.toml")), "--out",
-                                         str(model), *sets)
+                    fit_s = railwatch("train", "--detector", name, *flags, "--recordings",
+                                      str(a), str(b), "--layout",
+                                      str(a.with_suffix(".layout.toml")), "--out",
+                                      str(model), *sets).wall_s
                 events_path = work / f"events-{model.name}-seed{trio[2]}.csv"
-                wall, _ = railwatch("detect", "--model", str(model), "--recording", str(c),
-                                    "--out", str(events_path), one_core=True)
+                wall = railwatch("detect", "--model", str(model), "--recording", str(c),
+                                 "--out", str(events_path), one_core=True).wall_s
                 events = read_events(events_path)
                 truth = c.with_suffix(".defects.csv")
                 found, false, channel = match(events, truth)
@@ -137,8 +143,8 @@ def main() -> None:
                 bound = best_at_false_rate(read_events(low_path), truth, TARGET_FALSE)
                 split = by_stretch(events, truth, kind, trio[2])
                 rows.append({"detector": det, "kind": kind, "trio": trio, "fit_s": fit_s,
-                             "rtf": MINUTES * 60 / wall, "found": found,
-                             "false_min": false / MINUTES, "channel": channel,
+                             "rtf": RUN_MINUTES * 60 / wall, "found": found,
+                             "false_min": false / RUN_MINUTES, "channel": channel,
                              "events": len(events), "model": model, "test": c,
                              "threshold": threshold, "bound": bound, **split})
                 print(rows[-1], file=sys.stderr, flush=True)
@@ -155,7 +161,7 @@ def main() -> None:
     sets = f" with `--set {' --set '.join(args.set)}`" if args.set else ""
     lines = [
         "# Recordings under the later stages' nuisance", "",
-        (f"`python benchmarks/recordings_nuisance.py {' '.join(sys.argv[1:])}`"
+        (f"`{command(__name__)}`"
          if sys.argv[1:] else "`make bench-recordings-nuisance`")
         + f" on {datetime.date.today()}: {cpu_name()}, "
         f"{len(os.sched_getaffinity(0))} cores (training); `detect` pinned to one core "

@@ -1,6 +1,6 @@
 """Run the fault and fuzz tests and write what they tried into docs/results/reliability.md.
 
-    python benchmarks/reliability.py            # make bench-reliability
+    python -m benchmarks reliability            # make bench-reliability
 
 Counts per test file: test cases (each fault case is one), Hypothesis examples run (passing and
 failing, from ``--hypothesis-show-statistics``), failures and seconds; with the command, date,
@@ -20,6 +20,12 @@ from pathlib import Path
 
 from railwatch.machine import cpu_name
 from railwatch.report.pages import write_markdown
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/reliability.md"
+MINUTES = 3
 
 ROOT = Path(__file__).parents[1]
 FILES = {
@@ -76,7 +82,7 @@ def main() -> int:
     lines = [
         "# Reliability: fault and fuzz tests, last run",
         "",
-        f"`make bench-reliability` (`python benchmarks/reliability.py`), "
+        f"`make bench-reliability` (`python -m benchmarks reliability`), "
         f"{datetime.date.today().isoformat()}, commit {commit}, {cpu_name()}, "
         "2 cores. What is promised and how each promise is tested: "
         "[docs/reliability.md](../reliability.md).",

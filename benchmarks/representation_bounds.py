@@ -29,7 +29,7 @@ cross-entropy on 20,000 labelled stage-1 windows (seed 2, 10 epochs, Adam 1e-3).
 windows (seed 1). The unsupervised detectors are fitted on 2,000 unlabelled windows (seed 0) as in
 `make bench-detectors`.
 
-Run: `make bench-bounds` (about 5 minutes on 2 cores); writes
+Run: `make bench-representation-bounds` (about 5 minutes on 2 cores); writes
 docs/results/representation-bounds.md.
 """
 
@@ -54,6 +54,12 @@ from railwatch.detectors.mscred import signature_matrices
 from railwatch.machine import cpu_name
 from railwatch.report.pages import write_markdown
 from railwatch.synthetic import generate
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/representation-bounds.md"
+MINUTES = 5
 
 Features = Callable[[np.ndarray], np.ndarray]  # windows (N, T, 1) -> (N, steps, features)
 
@@ -130,8 +136,8 @@ def mscred_signatures(det: Detector, low: float = -1.0) -> Features:
 
 def aft_attention(det: Detector) -> Features:
     def features(X: np.ndarray) -> np.ndarray:
-        raw = det._raw_all(det._normalized(X))  # type: ignore[attr-defined]
-        z_enc, z_inp = det._attention_z(raw)  # type: ignore[attr-defined]  # (N,C,F,L), (N,T,C)
+        raw = det.raw_outputs(det.normalized(X))  # type: ignore[attr-defined]
+        z_enc, z_inp = det.attention_z(raw)  # type: ignore[attr-defined]  # (N,C,F,L), (N,T,C)
         n, _, _, n_tok = z_enc.shape
         per_sample = np.repeat(z_enc[:, 0], det.config.patch, axis=-1)  # type: ignore[attr-defined]
         per_sample = per_sample[..., :X.shape[1]].transpose(0, 2, 1)  # (N, T, F)
@@ -141,8 +147,8 @@ def aft_attention(det: Detector) -> Features:
 
 def aft_reconstruction(det: Detector) -> Features:
     def features(X: np.ndarray) -> np.ndarray:
-        raw = det._raw_all(det._normalized(X))  # type: ignore[attr-defined]
-        return det._reconstruction_channel(raw)  # type: ignore[attr-defined]  # (N, T, 1)
+        raw = det.raw_outputs(det.normalized(X))  # type: ignore[attr-defined]
+        return det.reconstruction_channel(raw)  # type: ignore[attr-defined]  # (N, T, 1)
     return features
 
 
@@ -152,7 +158,7 @@ def main() -> None:
     parser.add_argument("--labelled", type=int, default=20000, help="labelled training windows")
     parser.add_argument("--test", type=int, default=5000, help="test windows")
     parser.add_argument("--epochs", type=int, default=10, help="classifier epochs")
-    parser.add_argument("--out", default="docs/results/representation-bounds.md")
+    parser.add_argument("--out", default=PAGE)
     args = parser.parse_args()
 
     unlabelled = generate(1, 2000, 0)
@@ -184,7 +190,7 @@ def main() -> None:
 
     lines = [
         "# Stage 1: what each representation can show (a supervised bound)", "",
-        f"`python benchmarks/representation_bounds.py` on {datetime.date.today()}: {cpu_name()}, "
+        f"`python -m benchmarks representation_bounds` on {datetime.date.today()}: {cpu_name()}, "
         f"{len(os.sched_getaffinity(0))} cores, torch {torch.__version__}. Supervised "
         f"classifier: dilated 1-D CNN with a global max, {args.labelled:,} labelled windows, "
         f"{args.epochs} epochs; unsupervised detectors: 2,000 unlabelled windows, default "

@@ -1,6 +1,6 @@
 """Where the loss from stage 4 on comes from: the scoring or the model's prediction.
 
-    python benchmarks/residual_glr.py            # make bench-residual-glr
+    python -m benchmarks residual_glr            # make bench-residual-glr
 
 Per stage, at the quick preset's sizes (2,000 training and 1,000 test windows, seeds 0 / 1),
 instance ROC-AUC of the spike/box GLR (railwatch.scoring.residual.ResidualGLR) on:
@@ -31,6 +31,12 @@ from railwatch.scoring.glr import families, scan
 from railwatch.scoring.residual import ResidualGLR, null_counts
 from railwatch.synthetic import generate
 
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/residual-glr.md"
+MINUTES = 3
+
 STAGES = range(1, 9)
 N_TRAIN, N_TEST, EPOCHS = 2000, 1000, 8
 
@@ -58,7 +64,7 @@ def main() -> None:
         det = create("cnn-ae", {"epochs": EPOCHS, "progress": False}).fit(train.X)
         fit_s = time.perf_counter() - started
         paper = float(roc_auc_score(test.y, det.score(test.X).instance))
-        x = torch.from_numpy(det._normalized(test.X.astype(np.float32)))
+        x = torch.from_numpy(det.normalized(test.X.astype(np.float32)))
         with torch.no_grad():
             residual = torch.cat([det.model_(x[i:i + 256]) - x[i:i + 256]
                                   for i in range(0, len(x), 256)]).numpy()
@@ -69,7 +75,7 @@ def main() -> None:
     lines = [
         "# GLR scoring of residuals: the scoring or the model?",
         "",
-        f"`make bench-residual-glr` (`python benchmarks/residual_glr.py`), "
+        f"`make bench-residual-glr` (`python -m benchmarks residual_glr`), "
         f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores, torch "
         f"{torch.__version__}. Instance ROC-AUC, {N_TRAIN:,} training / {N_TEST:,} test windows "
         f"(seeds 0 / 1), CNN autoencoder at the quick preset's {EPOCHS} epochs.",

@@ -30,15 +30,20 @@ import argparse
 import datetime
 import json
 import re
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-from recordings import railwatch  # noqa: E402  (benchmarks/recordings.py, beside this script)
+from benchmarks.common import command as command_line
+from benchmarks.common import railwatch
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/track-map.md"
+MINUTES = 50
 
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
          "stage 8": ["--stage", "8", "--loud-stretches"]}
@@ -63,14 +68,14 @@ FACTORS = (1.0, 0.75, 0.5)
 TARGET_RECALL, TARGET_FALSE = 0.95, 0.1
 
 
-def page_head(script: str, doc: str) -> tuple[str, list[str]]:
+def page_head(module: str, doc: str) -> tuple[str, list[str]]:
     """How a results page of the track-map benchmarks opens: the command that made it (with
     this run's arguments), the date, the CPU and the first paragraph of the script's docstring
     after its title; and the numbered items of the next paragraph, one line each."""
     from railwatch.machine import cpu_name
 
     parts = doc.split("\n\n")
-    command = (f"Command: `python benchmarks/{script} {' '.join(sys.argv[1:])}`, "
+    command = (f"Command: `{command_line(module)}`, "
                f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
                + " ".join(parts[1].split()))
     items = [" ".join(item.split()) for item in re.split(r"\n(?=\d\. )", parts[2])] \
@@ -94,7 +99,7 @@ def scanned(folder: Path, detector: str, factor: float = 1.0, settings: tuple[st
     with ``factor`` × the model's event threshold; the scan folder. ``label`` names the model
     and scan folders (default: the detector); a label of TRAIN_FLAGS trains its detector with
     its flags."""
-    from railwatch.recordings.pipeline import load_recording_model
+    from railwatch.detection.pipeline import load_recording_model
 
     label = label or detector
     detector, flags = TRAIN_FLAGS.get(detector, (detector, ()))
@@ -219,7 +224,7 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
     import csv
     import json
 
-    from railwatch.recordings.pipeline import EVENT_FIELDS
+    from railwatch.detection.pipeline import EVENT_FIELDS
     from railwatch.synthetic.track import Odometry, make_track, synthesize_pass
     from railwatch.trackmap import EVENTS_SUFFIX, PROFILE_SUFFIX, SCAN_SUFFIX
 
@@ -255,9 +260,10 @@ def with_odometry(scan: Path, folder: Path, kind: str, role: str,
 
 
 def main() -> None:
+    np.seterr(all="ignore")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     parser.add_argument("--train", type=int, default=2,
                         help="passes to train on (10 more are laid out and mapped)")
     parser.add_argument("--detectors", default=",".join(dict.fromkeys(d for _, d in RUNS)),
@@ -298,7 +304,7 @@ def main() -> None:
     lines = [
         "# The track map against the number of passes",
         "",
-        page_head("track_map.py", __doc__)[0]
+        page_head(__name__, __doc__)[0]
         + ("" if TRAIN == 2 else f" Here {PASSES} passes, the first {TRAIN} trained on, the "
            "other 10 mapped."),
         "",
@@ -361,5 +367,4 @@ def _figure(results):  # type: ignore[no-untyped-def]
 
 
 if __name__ == "__main__":
-    np.seterr(all="ignore")
     main()

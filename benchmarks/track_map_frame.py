@@ -27,15 +27,19 @@ once).
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+from benchmarks import track_map as bench
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ('track_map',)
+PAGE = "docs/results/track-map-frame.md"
+MINUTES = 30
 
 ROLES = bench.DEV_ROLES
 SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10)}
@@ -66,9 +70,10 @@ def variant(index: int, passes: list) -> Iterator[None]:  # type: ignore[type-ar
 
 
 def main() -> None:
+    np.seterr(all="ignore")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-frame.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     parser.add_argument("--placements", default=",".join(PLACEMENTS),
                         help="comma-separated: which of the placements to measure")
     args = parser.parse_args()
@@ -111,12 +116,11 @@ def main() -> None:
                 text.append(f"{v[:, 0].mean():.1%} / {v[:, 1].mean():.2f} "
                             f"({v[:, 0].min():.0%})")
             rows.append(f"| {kind} | {placed} | " + " | ".join(text) + " |")
-    command, items = bench.page_head("track_map_frame.py", __doc__)
+    command, items = bench.page_head(__name__, __doc__)
     lines = ["# The fused map's frame and the check of the alignment's moves", "", command, "",
              *items, "", *rows]
     print(write_markdown(args.out, lines))
 
 
 if __name__ == "__main__":
-    np.seterr(all="ignore")
     main()

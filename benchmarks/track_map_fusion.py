@@ -25,7 +25,6 @@ tracks are made here): `make bench-track-map-fusion`, about 15 minutes on 2 core
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -34,8 +33,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import gammaincc
 
-sys.path.insert(0, str(Path(__file__).parent))
-import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+from benchmarks import track_map as bench
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ('track_map',)
+PAGE = "docs/results/track-map-fusion.md"
+MINUTES = 15
 
 SEEDS = {"dev": 12, "dev2": 13}
 SUBSETS = {"5 (3-7)": slice(0, 5), "5 (8-12)": slice(5, 10), "10": slice(0, 10)}
@@ -98,7 +102,7 @@ def rules(step: int) -> Iterator[None]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-fusion.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     args = parser.parse_args()
     from railwatch import trackmap as tm
     from railwatch.evaluation import maps as em
@@ -144,7 +148,7 @@ def main() -> None:
                 rows.append(f"| {kind} | {placed} | {label} | " + " | ".join(text) + " |")
                 print(rows[-1], flush=True)
     mean = totals / max(count, 1)
-    command, items = bench.page_head("track_map_fusion.py", __doc__)
+    command, items = bench.page_head(__name__, __doc__)
     lines = [
         "# What each step of the fused track map adds",
         "",

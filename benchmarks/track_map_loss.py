@@ -25,13 +25,17 @@ from __future__ import annotations
 
 import argparse
 import copy
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+from benchmarks import track_map as bench
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ('track_map',)
+PAGE = "docs/results/track-map-loss.md"
+MINUTES = 10
 
 DETECTORS = {"stage 5": ("context-glr", "aft-attention", "matched-filter",
                          "matched-filter ridge 1e-6"),
@@ -125,7 +129,7 @@ def top_share(scan: Path, name: str, p) -> list[bool]:  # type: ignore[no-untype
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-loss.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     args = parser.parse_args()
     from railwatch.report.pages import write_markdown
 
@@ -158,7 +162,7 @@ def main() -> None:
                 maps.append(f"| {kind} | {d} | {k} | " + " | ".join(
                     f"{c['recall']:.0%} / {c['false_per_km']:.1f}" for c in cells) + " |")
                 print(maps[-1], flush=True)
-    command, items = bench.page_head("track_map_loss.py", __doc__)
+    command, items = bench.page_head(__name__, __doc__)
     lines = [
         "# Where the track map loses defects",
         "",

@@ -39,13 +39,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
-import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+from benchmarks import track_map as bench
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ('track_map_frame', 'track_map_wheel')
+PAGE = "docs/results/track-map-sides.md"
+MINUTES = 50
 
 ROLES = bench.DEV_ROLES
 SUBSETS = {"5": (slice(0, 5), slice(5, 10)), "10": (slice(0, 10),)}
@@ -65,7 +69,7 @@ def scan_of(work: Path, kind: str, role: str, combed: bool) -> tuple[Path, Path]
     folder = bench.track(work, kind, role)
     source = folder.with_name(folder.name + "-wheel-estimated") if combed else folder
     if not source.is_dir():
-        raise SystemExit(f"{source} is missing: run benchmarks/track_map_wheel.py first")
+        raise SystemExit(f"{source} is missing: run python -m benchmarks track_map_wheel first")
     low = min(bench.FACTORS)
     return folder, bench.above(bench.scanned(source, "matched-filter", low), 1.0, low)
 
@@ -95,9 +99,10 @@ def measure(work: Path, kind: str, detector: str, role: str, combed: bool,
 
 
 def main() -> None:
+    np.seterr(all="ignore")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-sides.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     args = parser.parse_args()
     from railwatch.report.pages import write_markdown
 
@@ -137,7 +142,7 @@ def main() -> None:
                 picks = chose[(kind, detector, placed)]
                 rows.append(f"| {kind} | {detector} | {placed} | {count} | " + " | ".join(text)
                             + f" | {picks.count('swap')} of {len(picks)} |")
-    command, items = bench.page_head("track_map_sides.py", __doc__)
+    command, items = bench.page_head(__name__, __doc__)
     push_pull = " ".join(__doc__.split("\n\n")[3].split())
     lines = ["# The sides of the vehicle: what the fused map sums over the passes", "",
              command, "", *items, "", push_pull, "", *rows]
@@ -145,5 +150,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    np.seterr(all="ignore")
     main()

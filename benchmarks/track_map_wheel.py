@@ -25,7 +25,7 @@ Also measured: how often the estimate passes the gate and lands on L or a multip
 
 Stage-8 tracks of seeds 12-19 (the development tracks of `benchmarks/track_map.py`,
 `track_map_fusion.py` and `track_map_frame.py`; made here if missing), the stage-5 one of seed
-12. Run after `benchmarks/track_map.py`: `python benchmarks/track_map_wheel.py`, about 15
+12. Run after `benchmarks/track_map.py`: `python -m benchmarks track_map_wheel`, about 15
 minutes on 2 cores.
 """
 
@@ -33,14 +33,18 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).parent))
-import track_map as bench  # noqa: E402  (benchmarks/track_map.py, beside this script)
+from benchmarks import track_map as bench
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ('track_map',)
+PAGE = "docs/results/track-map-wheel.md"
+MINUTES = 15
 
 ROLES = bench.DEV_ROLES
 SUBSETS = {"3-7": slice(0, 5), "8-12": slice(5, 10), "3-12": slice(0, 10)}
@@ -128,9 +132,10 @@ def summary(per_track: list[list[tuple[float, float]]]) -> str:
 
 
 def main() -> None:
+    np.seterr(all="ignore")
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--work", type=Path, default=Path("runs/bench-track-map"))
-    parser.add_argument("--out", type=Path, default=Path("docs/results/track-map-wheel.md"))
+    parser.add_argument("--out", type=Path, default=Path(PAGE))
     args = parser.parse_args()
     from railwatch.recordings import wheel
     from railwatch.report.pages import write_markdown
@@ -169,7 +174,7 @@ def main() -> None:
                     f"| {kind} | {ROLES[role]} | {len(s)} | {int(passed.sum())} | "
                     + (f"{int((passed & on_l).sum())} | {int((~passed & on_l).sum())} |"
                        if kind == "stage 8" else "– (no impulses) | – |"))
-    command, items = bench.page_head("track_map_wheel.py", __doc__)
+    command, items = bench.page_head(__name__, __doc__)
     lines = ["# Wheel-periodic impulses combed out before the detector (`train --wheel-comb`)", "",
              command, "", *items, "",
              "Recall within ±2 m / false places per km of the fused map (matched filter, "
@@ -187,5 +192,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    np.seterr(all="ignore")
     main()

@@ -21,16 +21,14 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("railwatch", "railwatch.errors", "railwatch.atomic", "railwatch.progress",
      "railwatch.mapping_files", "railwatch.machine", "railwatch.parallel"),
-    ("railwatch.windows", "railwatch.recordings.layout"),  # file formats
-    ("railwatch.recordings", "railwatch.recordings.readers",
-     "railwatch.recordings.prepare", "railwatch.recordings.wheel",
-     "railwatch.scoring"),  # recordings; the scoring library
+    ("railwatch.windows", "railwatch.recordings"),  # file formats; recordings, the data source
+    ("railwatch.scoring",),  # the scoring library
     ("railwatch.synthetic",),  # synthetic windows and runs (runs written as recordings)
     ("railwatch.physics",),  # the vehicle-track world: passes written as recordings, twins
     ("railwatch.detectors",),
     ("railwatch.evaluation", "railwatch.evaluation.metrics"),
     ("railwatch.deploy",),  # a detector exported to, and loaded from, ONNX
-    ("railwatch.recordings.stream", "railwatch.recordings.pipeline"),  # detection on recordings
+    ("railwatch.detection",),  # detection on recordings: train, detect, stream
     ("railwatch.trackmap",),  # repeated passes: scan, the scan folder, alignment, fusion, maps
     ("railwatch.report",),  # tables, figures, the benchmark's report, the detection plot
     ("railwatch.bench",),
@@ -155,6 +153,14 @@ def test_no_cycle_between_packages() -> None:
         packages[top].discard(top)
     packages = {k: {d for d in v if d in packages} for k, v in packages.items()}
     assert _strongly_connected(packages) == []
+
+
+def test_no_package_sits_on_two_layers() -> None:
+    layers: dict[str, set[int]] = {}
+    for mod in graph():
+        top = ".".join(mod.split(".")[:2])
+        layers.setdefault(top, set()).add(layer_of(mod)[0])
+    assert {top: sorted(ls) for top, ls in layers.items() if len(ls) > 1} == {}
 
 
 def test_cycle_finder_finds_a_cycle() -> None:

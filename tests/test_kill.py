@@ -25,9 +25,9 @@ from pathlib import Path
 import pytest
 
 from railwatch.cli import main
+from railwatch.detection.pipeline import read_events
 from railwatch.detectors import create, load_detector
 from railwatch.errors import RailwatchError
-from railwatch.recordings.pipeline import read_events
 from railwatch.windows import load_windows
 from support import TINY, tiny_config
 

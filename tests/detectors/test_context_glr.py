@@ -56,7 +56,7 @@ def test_blind_spot_the_samples_under_test_do_not_change_their_own_prediction(
 
 def test_blind_spot_holds_for_the_trained_model(fitted) -> None:  # type: ignore[no-untyped-def]
     det, test = fitted
-    x = torch.from_numpy(det._normalized(test.X[:4].astype(np.float32)))
+    x = torch.from_numpy(det.normalized(test.X[:4].astype(np.float32)))
     changed = x.clone()
     changed[:, 100] += 25.0
     before, after = _outputs(det.model_, x), _outputs(det.model_, changed)

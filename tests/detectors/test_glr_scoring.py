@@ -43,7 +43,7 @@ def test_glr_row_is_the_same_network_scored_by_the_scan(data) -> None:  # type: 
     assert switched.threshold_ == direct.threshold_ != paper.threshold_
     np.testing.assert_array_equal(paper.score(test.X).channel, before)  # the paper row unchanged
     # the residual is the input minus the reconstruction, in normalised units
-    x = paper._normalized(test.X)
+    x = paper.normalized(test.X)
     with torch.no_grad():
         reconstruction = paper.model_(torch.from_numpy(x)).numpy()
     np.testing.assert_allclose(s.extras["residual"], x - reconstruction, atol=1e-5)

@@ -24,9 +24,9 @@ import torch
 
 from railwatch.cli import main
 from railwatch.deploy.onnx import CHECKSUM_KEY, META_KEY, load_onnx, read_metadata
+from railwatch.detection.pipeline import load_recording_model
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError
-from railwatch.recordings.pipeline import load_recording_model
 from support import TINY
 
 DEEP = ("cnn-ae", "aft-attention")
@@ -203,9 +203,9 @@ FOLDER_FAULTS: dict[str, tuple[Fault, bool, bool]] = {
 
 #: Faults that only the checksums in detector.json find: the damaged file still loads and
 #: scores (flipped bytes inside the weights), or ``railwatch detect`` does not check what it
-#: reads from recording.json (see ``recordings.pipeline.load_recording_model``).
+#: reads from recording.json (see ``detection.pipeline.load_recording_model``).
 #: Faults the command line (the first set) or the loading functions (the second) miss without
-#: the checksums; those of recording.json are for ``recordings.pipeline.load_recording_model``.
+#: the checksums; those of recording.json are for ``detection.pipeline.load_recording_model``.
 def _cases(commands: tuple[str, ...], sealed: bool = True) -> list[Any]:
     """(detector, fault, command, sealed) for every fault that applies. ``sealed=False``: the
     model as saved before detector.json recorded checksums (the fault is found otherwise)."""

@@ -11,9 +11,9 @@ import pytest
 
 from railwatch.cli import main
 from railwatch.deploy.onnx import TOLERANCE
-from railwatch.recordings.pipeline import load_recording_model, read_events
+from railwatch.detection.pipeline import load_recording_model, read_events
+from railwatch.detection.stream import StreamingDetector
 from railwatch.recordings.readers import Chunk, Recording
-from railwatch.recordings.stream import StreamingDetector
 
 
 def truth_times(path: Path) -> np.ndarray:
@@ -157,7 +157,7 @@ def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys) -> None:  #
     """``train --wheel-comb`` keeps the comb in the model, ``detect`` combs each recording the
     same way (stage 8: impulses on every channel); a layout without position or speed, and
     windows instead of recordings, are one-line errors."""
-    from railwatch.recordings.pipeline import prepared_chunks
+    from railwatch.detection.pipeline import prepared_chunks
 
     run = tmp_path / "run.parquet"
     assert main(["-q", "generate-run", "--minutes", "3", "--stage", "8", "--seed", "3",

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from railwatch.recordings.pipeline import Detection, Trace
-from railwatch.recordings.stream import Event
+from railwatch.detection.pipeline import Detection, Trace
+from railwatch.detection.stream import Event
 from railwatch.report import figures as F
 from railwatch.synthetic import stage_examples
 

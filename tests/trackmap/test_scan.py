@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from railwatch.cli import main
+from railwatch.detection import pipeline
 from railwatch.detectors import create
 from railwatch.errors import RailwatchError
-from railwatch.recordings import pipeline
 from railwatch.recordings.layout import load_layout
 from railwatch.recordings.prepare import Preparation
 from railwatch.recordings.readers import Recording

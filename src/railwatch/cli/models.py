@@ -130,14 +130,14 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
              f"{time.perf_counter() - started:.1f} s; threshold {detector.threshold_:.4g}; "
              f"saved to {out}")
         return
-    from railwatch.recordings.layout import load_layout
-    from railwatch.recordings.pipeline import (
+    from railwatch.detection.pipeline import (
         EVENTS_PER_MINUTE,
         event_threshold,
         fit_recording_model,
         median_speed,
         training_windows,
     )
+    from railwatch.recordings.layout import load_layout
     from railwatch.recordings.prepare import choose
     from railwatch.recordings.readers import Recording
     from railwatch.recordings.wheel import check_layout

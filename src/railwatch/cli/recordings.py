@@ -39,7 +39,7 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     Example:
       railwatch detect --model model/ --recording run.parquet --out events.csv --plot run.png
     """
-    from railwatch.recordings import pipeline
+    from railwatch.detection import pipeline
     from railwatch.recordings.layout import load_layout
     from railwatch.recordings.readers import Recording
     from railwatch.report.figures import plot_detection

@@ -118,13 +118,7 @@ def _metadata(det: Detector, keys: list[str], folder: Path | None) -> dict[str, 
 
     stats = io.BytesIO()
     np.savez(stats, **det.stats_)  # type: ignore[arg-type]
-    recording = None
-    if folder is not None and (folder / model_folder.RECORDING).is_file():
-        try:
-            recording = json.loads((folder / model_folder.RECORDING).read_text())
-        except (OSError, ValueError) as e:
-            raise RailwatchError(f"{folder / model_folder.RECORDING} is damaged ({one_line(e)}): "
-                                 "train the model again") from None
+    recording = model_folder.read_recording(folder) if folder is not None else None
     return {
         "detector": det.registry_name or type(det).__name__,
         "config": asdict(det.config), "n_steps": det.n_steps_, "n_channels": det.n_channels_,

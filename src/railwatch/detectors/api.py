@@ -231,8 +231,8 @@ class Detector(ABC):
             std = X.std(axis=(0, 1), dtype=np.float64)
             self.stats_["input_mean"] = mean.astype(np.float32)
             self.stats_["input_std"] = np.where(std > 1e-8, std, 1.0).astype(np.float32)
-        self._fit(self._normalized(X), ctx)
-        self._fit_threshold(self._normalized(X), ctx)
+        self._fit(self.normalized(X), ctx)
+        self._fit_threshold(self.normalized(X), ctx)
         return self
 
     def rescored(
@@ -257,7 +257,7 @@ class Detector(ABC):
         new.stats_ = dict(self.stats_)
         X = check_windows(X, n_channels=self.n_channels_,
                           n_steps=self.n_steps_ if self.fixed_length else None)
-        new._fit_threshold(new._normalized(X), new._check_context(context, len(X)))
+        new._fit_threshold(new.normalized(X), new._check_context(context, len(X)))
         return new
 
     def _fit_threshold(self, X: FloatArray, context: dict[str, FloatArray]) -> None:
@@ -282,7 +282,7 @@ class Detector(ABC):
             X, n_channels=self.n_channels_,
             n_steps=self.n_steps_ if self.fixed_length else None,
         )
-        return self._score(self._normalized(X), self._check_context(context, len(X)), extras)
+        return self._score(self.normalized(X), self._check_context(context, len(X)), extras)
 
     def localize(self, X: Any, context: Mapping[str, Any] | None = None) -> Localization:
         """The most anomalous time step (index and seconds) and channel of each window."""
@@ -356,7 +356,10 @@ class Detector(ABC):
         return det
 
     # -- helpers -------------------------------------------------------------------------
-    def _normalized(self, X: FloatArray) -> FloatArray:
+    def normalized(self, X: FloatArray) -> FloatArray:
+        """The windows as the detector's model sees them: standardised by the training windows'
+        per-channel mean and std when the detector normalises (a public hook for research
+        scripts that look inside a detector, such as benchmarks/)."""
         if not self.normalize:
             return X
         return (X - self.stats_["input_mean"]) / self.stats_["input_std"]

@@ -355,8 +355,9 @@ class AttentionFocusedTransformer(TorchDetector):
         inp = window_relative_features(raw["log_input_attention"].transpose(0, 2, 1))
         return enc, inp
 
-    def _attention_z(self, raw: dict[str, NDArray[Any]]) -> tuple[NDArray[Any], NDArray[Any]]:
-        """Standardised window-relative deviations: encoder (N, C, F, L), input (N, T, C)."""
+    def attention_z(self, raw: dict[str, NDArray[Any]]) -> tuple[NDArray[Any], NDArray[Any]]:
+        """Standardised window-relative attention deviations, from :meth:`raw_outputs`: encoder
+        (N, C, F, L), input (N, T, C)."""
         enc, inp = self._attention_relative(raw)
         z_enc = (enc - self.stats_["enc_loc"]) / self.stats_["enc_scale"]
         z_inp = (inp - self.stats_["inp_loc"]) / self.stats_["inp_scale"]
@@ -368,12 +369,14 @@ class AttentionFocusedTransformer(TorchDetector):
         features) and the input attention's squared z-score of the sample itself. The input
         attention is the only per-sample attention (the spike detector); weighted as one feature
         among 3 · layers · heads + 1 it was drowned by the encoder's."""
-        z_enc, z_inp = self._attention_z(raw)
+        z_enc, z_inp = self.attention_z(raw)
         n_steps = z_inp.shape[1]
         sq_enc = tokens_to_steps((z_enc**2).mean(axis=2), self.config.patch, n_steps)  # (N, T, C)
         return np.sqrt((sq_enc + z_inp**2) / 2)
 
-    def _reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
+    def reconstruction_channel(self, raw: dict[str, NDArray[Any]]) -> NDArray[Any]:
+        """The log of each sample's squared reconstruction error relative to its window's
+        (N, T, C), from :meth:`raw_outputs`."""
         # Floored: an error of exactly 0 (float32) would give −inf.
         sq_error = raw["residual"] ** 2
         return np.log(np.maximum(window_relative_error(sq_error), 1e-12))  # (N, T, C)
@@ -383,7 +386,7 @@ class AttentionFocusedTransformer(TorchDetector):
         self.stats_["enc_loc"], self.stats_["enc_scale"] = robust_location_scale(enc, axis=(0, 3))
         self.stats_["inp_loc"], self.stats_["inp_scale"] = robust_location_scale(inp, axis=(0, 2))
         for name, values in (("att", self._attention_channel(raw)),
-                             ("rec", self._reconstruction_channel(raw))):
+                             ("rec", self.reconstruction_channel(raw))):
             loc, scale = robust_location_scale(values, axis=(0, 1))  # (1, 1, C)
             self.stats_[f"{name}_score_loc"], self.stats_[f"{name}_score_scale"] = loc, scale
 
@@ -394,7 +397,7 @@ class AttentionFocusedTransformer(TorchDetector):
             att = self._attention_channel(raw)
             parts.append((att - self.stats_["att_score_loc"]) / self.stats_["att_score_scale"])
         if mode in ("reconstruction", "combined"):
-            rec = self._reconstruction_channel(raw)
+            rec = self.reconstruction_channel(raw)
             parts.append((rec - self.stats_["rec_score_loc"]) / self.stats_["rec_score_scale"])
         channel = (sum(parts) / len(parts)).astype(np.float32)  # (N, T, C)
         point = reduce_point_max(channel)

@@ -37,12 +37,33 @@ FORMAT_VERSION = 1
 HEADER = "detector.json"
 STATS = "stats.npz"
 WEIGHTS = "weights.pt"
-#: Written by ``railwatch train --recordings`` beside the model (``railwatch.recordings.pipeline``).
+#: Written by ``railwatch train --recordings`` beside the model (:func:`recording_file`).
 RECORDING = "recording.json"
 #: The files :func:`write` writes itself (extra files are named by the caller).
 MODEL_FILES = (HEADER, STATS, WEIGHTS)
 #: ``detector.json`` key of the SHA-256 of every other file in the folder.
 CHECKSUMS = "sha256"
+
+
+def recording_file(info: Mapping[str, Any]) -> dict[str, str]:
+    """The extra file of a model trained on recordings, for :func:`write`'s ``extra_files``:
+    ``info`` (its layout, preparation and threshold rule, JSON-ready) as ``recording.json``."""
+    return {RECORDING: json.dumps(info, indent=2)}
+
+
+def read_recording(path: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """A model folder's ``recording.json`` (:func:`recording_file`); None for a model trained on
+    windows. A damaged file is refused in one line."""
+    file = Path(path) / RECORDING
+    if not file.is_file():
+        return None
+    try:
+        info = json.loads(file.read_text())
+    except (OSError, ValueError) as e:
+        raise RailwatchError(f"{file} is damaged ({one_line(e)}): train the model again") from None
+    if not isinstance(info, dict):
+        raise RailwatchError(f"{file} is damaged (not a table): train the model again")
+    return info
 
 
 def is_model_folder(path: Path) -> bool:

@@ -171,7 +171,7 @@ class TorchDetector(Detector):
                 self.model_.load_state_dict(best_state)
         self.model_.eval()
         del self.optimizer_
-        self.fit_statistics(self._raw_all(val))
+        self.fit_statistics(self.raw_outputs(val))
 
     @torch.no_grad()
     def _evaluate(self, X: FloatArray) -> float:
@@ -191,8 +191,10 @@ class TorchDetector(Detector):
         """The network that computes the raw outputs for scoring."""
         return self.network_ if self.network_ is not None else TorchNetwork(self)
 
-    def _raw_all(self, X: FloatArray) -> dict[str, NDArray[Any]]:
-        """Raw outputs of all windows, in batches of ``batch_size``."""
+    def raw_outputs(self, X: FloatArray) -> dict[str, NDArray[Any]]:
+        """The network's raw outputs (name → array, one row per window) of windows already
+        :meth:`normalized`, in batches of ``batch_size``: what the scoring starts from (a public
+        hook for research scripts that look inside a detector, such as benchmarks/)."""
         network = self.network()
         parts: dict[str, list[NDArray[Any]]] = {}
         for i in range(0, len(X), self.config.batch_size):
@@ -201,7 +203,7 @@ class TorchDetector(Detector):
         return {k: np.concatenate(v) for k, v in parts.items()}
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
-        raw = self._raw_all(X)
+        raw = self.raw_outputs(X)
         if getattr(self.config, "scoring", None) == GLR_SCORING:
             return self.glr_scores(raw, X.shape[1], extras)
         return self.scores_from_raw(raw, extras)

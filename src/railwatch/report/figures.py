@@ -19,7 +19,7 @@ from railwatch.detectors import registry
 from railwatch.windows import KIND_NAMES, WindowSet
 
 if TYPE_CHECKING:
-    from railwatch.recordings.pipeline import Detection
+    from railwatch.detection.pipeline import Detection
 
 
 def save_figure(fig: Figure, path: str | os.PathLike[str], dpi: int = 110) -> Path:

@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 
 from railwatch.atomic import atomic_path, atomic_savez, sha256_file
+from railwatch.detection import pipeline
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
-from railwatch.recordings import pipeline
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording
 from railwatch.trackmap.folder import (

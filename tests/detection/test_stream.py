@@ -7,16 +7,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from railwatch.detectors import create
-from railwatch.errors import RailwatchError
-from railwatch.recordings.layout import Layout
-from railwatch.recordings.prepare import Preparation, frame, resample
-from railwatch.recordings.stream import (
+from railwatch.detection.stream import (
     EventTracker,
     StreamingDetector,
     assign_centres,
     merge_max,
 )
+from railwatch.detectors import create
+from railwatch.errors import RailwatchError
+from railwatch.recordings.layout import Layout
+from railwatch.recordings.prepare import Preparation, frame, resample
 
 
 @given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 2**31))

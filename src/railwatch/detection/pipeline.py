@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.detection.stream import Event, StreamingDetector
 from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
@@ -30,7 +31,6 @@ from railwatch.recordings import wheel
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Chunk, Recording
-from railwatch.recordings.stream import Event, StreamingDetector
 from railwatch.scoring.thresholds import GumbelNull, ThresholdRule
 
 EVENT_FIELDS = ("start_s", "end_s", "peak_s", "channel", "group", "score", "threshold",
@@ -128,7 +128,7 @@ def recording_info(layout: Layout, prep: Preparation,
     rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
     info = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
             "threshold_rule": rule.describe()}
-    return {model_folder.RECORDING: json.dumps(info, indent=2)}
+    return model_folder.recording_file(info)
 
 
 def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
@@ -175,11 +175,7 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
         info, source = read_metadata(model).get("recording"), f"the metadata of {model}"
     else:
         detector = load_detector(model)
-        source = str(path)
-        try:
-            info = json.loads(path.read_text()) if path.is_file() else None
-        except (OSError, ValueError) as e:
-            raise RailwatchError(f"{path} is damaged ({e}): train the model again") from None
+        info, source = model_folder.read_recording(model), str(path)
     if info is None:
         raise RailwatchError(
             f"{model} was trained on windows, not recordings (no {model_folder.RECORDING}): "

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from railwatch.detection import pipeline
 from railwatch.detectors import create
-from railwatch.recordings import pipeline
 from railwatch.recordings.layout import load_layout
 from railwatch.recordings.prepare import Preparation
 from railwatch.recordings.readers import Recording

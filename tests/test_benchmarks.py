@@ -1,0 +1,103 @@
+"""benchmarks/ is a small package with one runner: every benchmark declares what the runner needs,
+the index lists it, and none reaches into railwatch past its public API."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+FOLDER = REPO / "benchmarks"
+
+
+@pytest.fixture
+def runner(monkeypatch):  # type: ignore[no-untyped-def]
+    monkeypatch.syspath_prepend(str(REPO))
+    return importlib.import_module("benchmarks.__main__")
+
+
+def test_every_benchmark_declares_needs_page_and_minutes(runner) -> None:  # type: ignore[no-untyped-def]
+    found = runner.benchmarks()
+    modules = {p.stem for p in FOLDER.glob("*.py")} - runner.NOT_BENCHMARKS
+    assert set(found) == modules and len(found) >= 18
+    for b in found.values():
+        assert b.summary and b.minutes > 0
+        assert set(b.needs) <= set(found) - {b.name}, b.name
+        if b.page is not None:
+            assert (REPO / b.page).is_file(), f"{b.name}: {b.page} is not committed"
+    # What must run first has no cycle.
+    done: set[str] = set()
+    while len(done) < len(found):
+        ready = {n for n, b in found.items() if n not in done and set(b.needs) <= done}
+        assert ready, f"the needs of {sorted(set(found) - done)} form a cycle"
+        done |= ready
+
+
+def test_a_benchmark_without_declarations_is_refused(runner, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    bad = tmp_path / "bad.py"
+    bad.write_text('"""Measures nothing."""\nNEEDS = ()\nPAGE = None\n')
+    with pytest.raises(SystemExit, match="declares no MINUTES"):
+        runner.declared(bad)
+    bad.write_text('"""Measures nothing."""\nNEEDS = ()\nPAGE = None\nMINUTES = 1\nMINUTES = 2\n')
+    with pytest.raises(SystemExit, match="assigns MINUTES twice"):
+        runner.declared(bad)
+
+
+def test_the_index_lists_every_benchmark_and_its_page(runner) -> None:  # type: ignore[no-untyped-def]
+    index = (FOLDER / "README.md").read_text()
+    for b in runner.benchmarks().values():
+        assert f"| `{b.name}` |" in index, f"benchmarks/README.md does not list {b.name}"
+        if b.page is not None:
+            assert f"(../{b.page})" in index, f"benchmarks/README.md does not link {b.page}"
+
+
+def _private_uses(tree: ast.AST) -> list[str]:
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute):
+            if node.attr.startswith("_") and not node.attr.startswith("__"):
+                out.append(f"line {node.lineno}: .{node.attr}")
+            if node.attr == "path" and isinstance(node.value, ast.Name) \
+                    and node.value.id == "sys":
+                out.append(f"line {node.lineno}: sys.path")
+        if isinstance(node, ast.ImportFrom) and node.module:
+            private = [a.name for a in node.names if a.name.startswith("_")]
+            if node.module != "__future__" and (
+                    any(p.startswith("_") for p in node.module.split(".")) or private):
+                out.append(f"line {node.lineno}: from {node.module} import {private}")
+        if isinstance(node, ast.ImportFrom) and node.level:
+            out.append(f"line {node.lineno}: a relative import")
+    return out
+
+
+def test_no_benchmark_edits_sys_path_or_uses_a_private_name() -> None:
+    found = {p.name: _private_uses(ast.parse(p.read_text())) for p in FOLDER.glob("*.py")}
+    assert {name: uses for name, uses in found.items() if uses} == {}
+    # The check can fail: the scripts as they were before the runner.
+    old = ("import sys\nsys.path.insert(0, 'x')\nimport track_map as bench\n"
+           "raw = det._raw_all(det._normalized(X))\nfrom railwatch.x import _load\n")
+    assert len(_private_uses(ast.parse(old))) == 4
+
+
+def test_every_benchmark_imports_as_part_of_the_package(runner) -> None:  # type: ignore[no-untyped-def]
+    for name in runner.benchmarks():
+        module = importlib.import_module(f"benchmarks.{name}")
+        assert callable(module.main), name
+
+
+def test_the_runner_lists_and_refuses_in_one_line() -> None:
+    listed = subprocess.run([sys.executable, "-m", "benchmarks"], cwd=REPO, text=True,
+                            capture_output=True, check=True).stdout
+    assert "physics" in listed and "docs/results/physics.md" in listed
+    wrong = subprocess.run([sys.executable, "-m", "benchmarks", "no-such"], cwd=REPO, text=True,
+                           capture_output=True)
+    assert wrong.returncode == 2 and wrong.stderr.count("\n") == 1
+    assert wrong.stderr.startswith("error: no benchmark 'no-such'")
+    helped = subprocess.run([sys.executable, "-m", "benchmarks", "matched-filter-ridge", "--help"],
+                            cwd=REPO, text=True, capture_output=True, check=True).stdout
+    assert "--out" in helped
