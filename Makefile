@@ -9,7 +9,7 @@ LATEST ?= .venv-latest
 COMPILE := $(BIN)/pip-compile --quiet --extra dev --extra ray --all-build-deps --allow-unsafe \
 	--strip-extras --no-emit-index-url --no-emit-find-links -c constraints.txt -o $(LOCK)
 OUT ?= runs/quick
-REPORT ?= docs/results/standard/report.html
+REPORT ?= docs/results/paper/standard/report.html
 SHOT ?= docs/report-screenshot.png
 
 .PHONY: run data test test-latest lock lint benchmarks bench-standard screenshot clean

@@ -15,7 +15,7 @@ context-glr at its default size:
 
 If the supervised network predicts no better than the unsupervised one, the loss is the
 architecture's (what a blind-spot CNN of this size can learn from 2,000 windows), not the
-contamination or the self-supervised target. Writes docs/results/context-glr.md.
+contamination or the self-supervised target. Writes docs/results/detectors/context-glr.md.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from railwatch.windows import WindowSet
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/context-glr.md"
+PAGE = "docs/results/detectors/context-glr.md"
 MINUTES = 10
 
 N_TRAIN, N_TEST = 2000, 1000
@@ -125,7 +125,7 @@ def main() -> None:
         "true nuisance (mean-squared error, the same injected defects in its input) and scores "
         "its residual with the change-point scale.",
     ]
-    write_markdown("docs/results/context-glr.md", lines)
+    write_markdown("docs/results/detectors/context-glr.md", lines)
 
 
 if __name__ == "__main__":

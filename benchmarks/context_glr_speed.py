@@ -16,7 +16,7 @@ seeds, so that nothing is chosen on a benchmark test set):
 - onnxruntime on one thread: milliseconds per window (scoring 320 windows at batch 32, scan
   included, median of 3) and the largest score difference from PyTorch.
 
-Writes docs/results/context-glr-speed.md and docs/results/context-glr-speed.png.
+Writes docs/results/detectors/context-glr-speed.md and docs/results/detectors/context-glr-speed.png.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from railwatch.synthetic import generate
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/context-glr-speed.md"
+PAGE = "docs/results/detectors/context-glr-speed.md"
 MINUTES = 15
 
 STAGE, N_TRAIN, N_TEST, SEEDS = 7, 3000, 3000, (2468, 2469)

@@ -10,7 +10,7 @@ residual with every pairing of a prediction (learned / the true nuisance) and a 
 ROC-AUC over all windows, over normal and spike windows ("spike") and over normal and
 local-deviation windows ("box"). Also the prediction error against the true nuisance per sample
 and averaged over 10 samples, each over the same for the noise. Writes
-docs/results/context-glr-swap.md.
+docs/results/detectors/context-glr-swap.md.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from railwatch.synthetic import generate
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/context-glr-swap.md"
+PAGE = "docs/results/detectors/context-glr-swap.md"
 MINUTES = 3
 
 N_TRAIN, N_TEST = 2000, 1000
@@ -121,7 +121,7 @@ def main() -> None:
         "|---|---|---|---|",
         *errors,
     ]
-    print(write_markdown("docs/results/context-glr-swap.md", lines))
+    print(write_markdown("docs/results/detectors/context-glr-swap.md", lines))
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ from benchmarks.common import command
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/matched-filter-ridge.md"
+PAGE = "docs/results/detectors/matched-filter-ridge.md"
 MINUTES = 5
 
 RIDGES = (1e-6, 1e-2, 0.1, 1.0)

@@ -59,7 +59,7 @@ from benchmarks.common import command, railwatch, read_csv
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/physics.md"
+PAGE = "docs/results/physics/physics.md"
 MINUTES = 40
 #: The CLI in a child process, what it reported captured (detect's line gives the speed).
 cli = partial(railwatch, quiet=False, capture=True)
@@ -368,7 +368,7 @@ def main() -> None:
     parser.add_argument("--passes", type=int, default=12, help="passes per track")
     parser.add_argument("--made-differently", action="store_true",
                         help="only the worlds made differently, into "
-                             "docs/results/physics-made-differently.md")
+                             "docs/results/physics/physics-made-differently.md")
     args = parser.parse_args()
     if args.made_differently:
         made_differently(args.work, args.out.with_name("physics-made-differently.md"))

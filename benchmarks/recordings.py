@@ -1,4 +1,4 @@
-"""Measure the recordings pipeline on one CPU core and write docs/results/recordings.md:
+"""Measure the recordings pipeline on one CPU core and write docs/results/recordings/recordings.md:
 
 1. detection quality on a synthesised 10-minute run (attention model, default settings, trained on
    two other 10-minute runs): share of defects found within +-0.25 s, false events per minute;
@@ -27,7 +27,7 @@ from benchmarks.common import match, railwatch
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/recordings.md"
+PAGE = "docs/results/recordings/recordings.md"
 MINUTES = 5
 
 def latency(fn, repeats: int = 300) -> tuple[float, float]:  # type: ignore[no-untyped-def]

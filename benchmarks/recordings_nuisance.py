@@ -1,6 +1,6 @@
 """Recordings under the later stages' nuisance: train on two 10-minute runs, detect on a third,
 for three seed trios each of stage-5-like and stage-8-like runs with loud stretches of track,
-and write docs/results/recordings-nuisance.md (+ a figure of the worst trio's scores).
+and write docs/results/recordings/recordings-nuisance.md (+ a figure of the worst trio's scores).
 
 The runs come from `railwatch generate-run --stage {5,8} --loud-stretches` (HF bursts at rough
 spots of the track and wheel-periodic impulses at stage 8, sections of 200-1500 m with 2-4x the
@@ -28,7 +28,7 @@ from benchmarks.common import command, match, railwatch
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/recordings-nuisance.md"
+PAGE = "docs/results/recordings/recordings-nuisance.md"
 MINUTES = 20
 
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],

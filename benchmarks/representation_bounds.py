@@ -30,7 +30,7 @@ windows (seed 1). The unsupervised detectors are fitted on 2,000 unlabelled wind
 `make bench-detectors`.
 
 Run: `make bench-representation-bounds` (about 5 minutes on 2 cores); writes
-docs/results/representation-bounds.md.
+docs/results/detectors/representation-bounds.md.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ from railwatch.synthetic import generate
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/representation-bounds.md"
+PAGE = "docs/results/detectors/representation-bounds.md"
 MINUTES = 5
 
 Features = Callable[[np.ndarray], np.ndarray]  # windows (N, T, 1) -> (N, steps, features)

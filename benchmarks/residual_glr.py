@@ -12,7 +12,7 @@ instance ROC-AUC of the spike/box GLR (railwatch.scoring.residual.ResidualGLR) o
   gives a learned model, next to the same trained model's paper-faithful score.
 
 The gap between the second and the last column is the model's prediction of the normal signal;
-between the first two, the noise-scale estimate. Writes docs/results/residual-glr.md.
+between the first two, the noise-scale estimate. Writes docs/results/detectors/residual-glr.md.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from railwatch.synthetic import generate
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/residual-glr.md"
+PAGE = "docs/results/detectors/residual-glr.md"
 MINUTES = 3
 
 STAGES = range(1, 9)
@@ -86,7 +86,7 @@ def main() -> None:
         "level (one change point per window and channel) costs; the last two are the same "
         "trained network scored two ways.",
     ]
-    write_markdown("docs/results/residual-glr.md", lines)
+    write_markdown("docs/results/detectors/residual-glr.md", lines)
 
 
 if __name__ == "__main__":

@@ -20,8 +20,8 @@ shifted at random reach at most 0.1 times per km (its default), and takes its ev
 alignment) at the model's threshold.
 
 Run: `make bench-track-map` (about 50 minutes on 2 cores). `--train 6 --detectors context-glr
---no-throughput --out docs/results/track-map-train6.md` trains on 6 passes instead of 2 (16 laid
-out, the last 10 mapped; about 30 minutes).
+--no-throughput --out docs/results/track-map/track-map-train6.md` trains on 6 passes instead of
+2 (16 laid out, the last 10 mapped; about 30 minutes).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from benchmarks.common import railwatch
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
-PAGE = "docs/results/track-map.md"
+PAGE = "docs/results/track-map/track-map.md"
 MINUTES = 50
 
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],

@@ -38,7 +38,7 @@ from benchmarks import track_map as bench
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ('track_map',)
-PAGE = "docs/results/track-map-fusion.md"
+PAGE = "docs/results/track-map/track-map-fusion.md"
 MINUTES = 15
 
 SEEDS = {"dev": 12, "dev2": 13}

@@ -48,7 +48,7 @@ from benchmarks import track_map as bench
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ('track_map_frame', 'track_map_wheel')
-PAGE = "docs/results/track-map-sides.md"
+PAGE = "docs/results/track-map/track-map-sides.md"
 MINUTES = 50
 
 ROLES = bench.DEV_ROLES

@@ -43,7 +43,7 @@ from benchmarks import track_map as bench
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ('track_map',)
-PAGE = "docs/results/track-map-wheel.md"
+PAGE = "docs/results/track-map/track-map-wheel.md"
 MINUTES = 15
 
 ROLES = bench.DEV_ROLES

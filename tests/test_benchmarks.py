@@ -93,7 +93,7 @@ def test_every_benchmark_imports_as_part_of_the_package(runner) -> None:  # type
 def test_the_runner_lists_and_refuses_in_one_line() -> None:
     listed = subprocess.run([sys.executable, "-m", "benchmarks"], cwd=REPO, text=True,
                             capture_output=True, check=True).stdout
-    assert "physics" in listed and "docs/results/physics.md" in listed
+    assert "physics" in listed and "docs/results/physics/physics.md" in listed
     wrong = subprocess.run([sys.executable, "-m", "benchmarks", "no-such"], cwd=REPO, text=True,
                            capture_output=True)
     assert wrong.returncode == 2 and wrong.stderr.count("\n") == 1

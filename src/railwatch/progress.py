@@ -114,3 +114,12 @@ class Progress:
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def seconds_of_recording(total_s: float, desc: str, enabled: bool = True) -> Progress:
+    """Progress counting seconds of recording: a bar on a terminal, a log line every 10 s
+    elsewhere."""
+    return Progress(round(total_s, 1), desc, "s of recording", every_s=10.0, enabled=enabled,
+                    unit_scale=True,
+                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s of recording "
+                               "[{elapsed}<{remaining}]")

@@ -35,7 +35,7 @@ import os, signal, sys
 import numpy as np
 from railwatch.atomic import atomic_path
 from railwatch.bench import store
-from railwatch.report import benchmark as report
+from railwatch.report import run_report as report
 
 point, nth = sys.argv[1], int(sys.argv[2])
 calls = [0]

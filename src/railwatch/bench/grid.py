@@ -18,7 +18,7 @@ from railwatch.bench.store import ResultStore, nan_to_none
 from railwatch.errors import RailwatchError
 
 if TYPE_CHECKING:
-    from railwatch.report.benchmark import AttentionExample
+    from railwatch.report.run_report import AttentionExample
 
 
 def run_grid(
@@ -120,10 +120,10 @@ def _retime(store: ResultStore, preset: Preset,
 
 def write_run_report(out: Path, preset: Preset, records: list[dict[str, Any]],
                      wall_s: float | None = None) -> Path:
-    """Hand a run's finished cells to the report (:mod:`railwatch.report.benchmark`): records,
+    """Hand a run's finished cells to the report (:mod:`railwatch.report.run_report`): records,
     the kept arrays of seed 0, the attention example and the stages' example windows; returns
     the path of report.html."""
-    from railwatch.report.benchmark import write_report
+    from railwatch.report.run_report import write_report
     from railwatch.synthetic import stage_examples
 
     store = ResultStore(out)
@@ -139,7 +139,7 @@ def attention_example(preset: Preset, store: ResultStore, seed0: list[Cell],
     test window (a local deviation if there is one, as it spans several tokens)."""
     import numpy as np
 
-    from railwatch.report.benchmark import AttentionExample
+    from railwatch.report.run_report import AttentionExample
 
     for c in seed0:
         a = arrays[(c.stage, c.detector)]

@@ -77,13 +77,11 @@ def parse_rate(value: str) -> float | None:
 def progress_seconds(total_s: float, desc: str) -> Any:
     """Progress counting seconds of recording: a bar on a terminal, a log line every 10 s
     elsewhere (hidden with -q)."""
-    from railwatch.progress import Progress
+    from railwatch.progress import seconds_of_recording
 
     ctx = click.get_current_context()
-    return Progress(round(total_s, 1), desc, "s of recording", every_s=10.0,
-                    enabled=(ctx.find_root().obj or {}).get("progress", True), unit_scale=True,
-                    bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s of recording "
-                               "[{elapsed}<{remaining}]")
+    return seconds_of_recording(total_s, desc,
+                                (ctx.find_root().obj or {}).get("progress", True))
 
 
 def int_list(value: str | None, what: str) -> tuple[int, ...] | None:

@@ -12,7 +12,6 @@ from railwatch.cli.common import (
     info,
     model_dir,
     parse_rate,
-    progress_seconds,
     read_overrides,
     writable_file,
 )
@@ -130,17 +129,8 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
              f"{time.perf_counter() - started:.1f} s; threshold {detector.threshold_:.4g}; "
              f"saved to {out}")
         return
-    from railwatch.detection.pipeline import (
-        EVENTS_PER_MINUTE,
-        event_threshold,
-        fit_recording_model,
-        median_speed,
-        training_windows,
-    )
+    from railwatch.detection.pipeline import train_on_recordings
     from railwatch.recordings.layout import load_layout
-    from railwatch.recordings.prepare import choose
-    from railwatch.recordings.readers import Recording
-    from railwatch.recordings.wheel import check_layout
 
     if layout_file is None:
         raise RailwatchError("--recordings needs --layout FILE (TOML/YAML naming the columns; "
@@ -150,42 +140,13 @@ def train(obj: dict, name: str, data: Path | None, recordings: tuple[Path, ...],
     chosen = None if groups_text.strip().lower() in ("auto", "") else (
         tuple(dict.fromkeys(layout.groups)) if groups_text.strip().lower() == "all" else
         tuple(g.strip() for g in groups_text.split(",") if g.strip()))
-    if wheel_comb:
-        check_layout(layout)
-    sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
-    speed = median_speed(sources) if layout.scale == "field" and not window_s else None
-    choice = choose(layout.groups, layout.scale, layout.fs, speed, rate=rate, window_s=window_s,
-                    hop_s=hop_s, chosen_groups=chosen, wheel_turns=2 if wheel_comb else 0)
-    prep = choice.preparation
-    prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
-    per_minute = EVENTS_PER_MINUTE[layout.scale] if events_per_minute is None \
-        else events_per_minute
-    rule = event_threshold(prep, per_minute)  # and on an impossible rate of events
-    for reason in choice.reasons:
-        info(reason)
-    if layout.scale == "field":
-        from railwatch.detectors.registry import class_for
-
-        fitted = class_for(name).field_scale(prep.output_rate(layout.fs))
-        mine = {k: v for k, v in fitted.items() if k not in overrides}
-        if mine:
-            info(f"field scale: {name} with " + ", ".join(
-                f"{k}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
-                for k, v in mine.items()) + " (--set overrides)")
-            detector = create(name, {**mine, **overrides})
-    layout = layout.select(choice.groups)
-    sources = [Recording(p, layout) for p in paths]
-    total = sum(r.duration_s for r in sources)
-    with progress_seconds(total, "reading") as bar:
-        X = training_windows(sources, prep,
-                             progress=lambda n: bar.update(round(n / layout.fs, 3)))
-    if obj["progress"]:
-        info(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
-             f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
-    threshold = fit_recording_model(detector, X, layout, prep, out, rule)
+    done = train_on_recordings(name, overrides, paths, layout, out, rate=rate,
+                               window_s=window_s, hop_s=hop_s, groups=chosen,
+                               wheel_comb=wheel_comb, events_per_minute=events_per_minute,
+                               say=info, progress=obj["progress"])
     info(f"trained {name} in {time.perf_counter() - started:.1f} s; event threshold "
-         f"{threshold:.4g} ({per_minute:g} windows per minute of the training recordings' "
-         f"null, --events-per-minute); saved to {out}")
+         f"{done.threshold:.4g} ({done.per_minute:g} windows per minute of the training "
+         f"recordings' null, --events-per-minute); saved to {out}")
 
 
 @click.command()

@@ -33,9 +33,11 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     """Scan a recording for defects: events with start, end, peak time, channel and position.
 
     \b
-    Every 2-s window (every 0.5 s) is scored; each sample takes the highest score of the windows
-    that cover it; runs above the threshold (closer than 0.5 s merged) are events. Streams the
-    file block by block: hours of recording in bounded memory.
+    The recording is prepared as the model was trained (its rate, window and hop are in the
+    model folder: about 10 m of track per window at field scale, 2-s windows every 0.5 s at
+    the benchmark's); each sample takes the highest score of the windows that cover it; runs
+    above the threshold (closer than 0.5 s merged) are events. Streams the file block by
+    block: hours of recording in bounded memory.
     Example:
       railwatch detect --model model/ --recording run.parquet --out events.csv --plot run.png
     """

@@ -145,6 +145,73 @@ def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layo
 
 
 @dataclass
+class Trained:
+    """What :func:`train_on_recordings` did."""
+
+    threshold: float  # the event threshold it set
+    per_minute: float  # at this many windows per minute of the training recordings' null
+    windows: tuple[int, ...]  # the training windows' shape (N, T, C)
+    minutes: float  # of recording read
+    field_settings: dict[str, Any]  # the detector's field-scale settings (not overridden)
+
+
+def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Path],
+                        layout: Layout, out: str | os.PathLike[str], *,
+                        rate: float | str | None = "auto", window_s: float | None = None,
+                        hop_s: float | None = None, groups: tuple[str, ...] | None = None,
+                        wheel_comb: bool = False, events_per_minute: float | None = None,
+                        say: Callable[[str], None] = lambda _: None,
+                        progress: bool = True) -> Trained:
+    """``railwatch train --recordings``: the registry detector ``name`` (config ``overrides``;
+    at field scale its :meth:`field_scale` settings under them) trained without labels on the
+    recordings ``paths`` read with ``layout``, prepared as :func:`railwatch.recordings.prepare.
+    choose` picks from the layout's scale, rate and the recordings' median speed (``rate``,
+    ``window_s``, ``hop_s``, ``groups`` and ``wheel_comb`` override it), its event threshold set
+    at ``events_per_minute`` (default by the scale, :data:`EVENTS_PER_MINUTE`) and saved with its
+    ``recording.json`` to ``out``. ``say`` gets the choices in words; every file and setting is
+    checked before any is read."""
+    from railwatch.detectors import create
+    from railwatch.detectors.registry import class_for
+    from railwatch.progress import seconds_of_recording
+    from railwatch.recordings.prepare import choose
+
+    detector = create(name, overrides)  # unknown names and settings fail before any reading
+    if wheel_comb:
+        wheel.check_layout(layout)
+    sources = [Recording(p, layout) for p in paths]  # every file checked before any reading
+    speed = median_speed(sources) if layout.scale == "field" and not window_s else None
+    choice = choose(layout.groups, layout.scale, layout.fs, speed, rate=rate, window_s=window_s,
+                    hop_s=hop_s, chosen_groups=groups, wheel_turns=2 if wheel_comb else 0)
+    prep = choice.preparation
+    prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
+    per_minute = EVENTS_PER_MINUTE[layout.scale] if events_per_minute is None \
+        else events_per_minute
+    rule = event_threshold(prep, per_minute)  # and on an impossible rate of events
+    for reason in choice.reasons:
+        say(reason)
+    mine: dict[str, Any] = {}
+    if layout.scale == "field":
+        fitted = class_for(name).field_scale(prep.output_rate(layout.fs))
+        mine = {k: v for k, v in fitted.items() if k not in overrides}
+        if mine:
+            say(f"field scale: {name} with " + ", ".join(
+                f"{k}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
+                for k, v in mine.items()) + " (--set overrides)")
+            detector = create(name, {**mine, **overrides})
+    layout = layout.select(choice.groups)
+    sources = [Recording(p, layout) for p in paths]
+    total = sum(r.duration_s for r in sources)
+    with seconds_of_recording(total, "reading", progress) as bar:
+        X = training_windows(sources, prep,
+                             progress=lambda n: bar.update(round(n / layout.fs, 3)))
+    if progress:
+        say(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
+            f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
+    threshold = fit_recording_model(detector, X, layout, prep, out, rule)
+    return Trained(threshold, per_minute, tuple(X.shape), total / 60, mine)
+
+
+@dataclass
 class RecordingModel:
     """A detector trained on recordings, with how to prepare new ones and its event threshold."""
 

@@ -137,7 +137,7 @@ def _figures(out: Path, records: list[dict[str, Any]],
 def why_different(records: list[dict[str, Any]], stages: list[int],
                   detectors: list[str]) -> list[tuple[str, str]]:
     """What we believe explains the differences from the paper's Table I, with this run's
-    numbers where its stages and detectors allow (docs/benchmarks.md holds the evidence)."""
+    numbers where its stages and detectors allow (docs/measurements.md holds the evidence)."""
     agg = T.aggregate(records, "auc_instance")
 
     def auc(stage: int, det: str) -> float:
