@@ -80,7 +80,7 @@ def main(argv: list[str]) -> int:
               "with the same --work (python -m benchmarks lists each one's needs)",
               file=sys.stderr)
     module = importlib.import_module(f"benchmarks.{name}")
-    sys.argv = [f"benchmarks {name}", *argv[1:]]
+    sys.argv = [f"python -m benchmarks {name}", *argv[1:]]
     return int(module.main() or 0)
 
 
