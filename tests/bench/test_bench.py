@@ -29,6 +29,7 @@ def smoke_run(tmp_path_factory) -> Path:  # type: ignore[no-untyped-def]
 def test_smoke_run_writes_every_output(smoke_run: Path) -> None:
     for name in OUTPUTS:
         assert (smoke_run / name).stat().st_size > 0, name
+    assert not list((smoke_run / "cache" / "models").glob("*/fit_residual.npz"))
     results = json.loads((smoke_run / "results.json").read_text())
     cells = results["cells"]
     assert {(c["stage"], c["detector"]) for c in cells} == {
@@ -61,7 +62,11 @@ def test_scoring_variants_share_one_training(tmp_path) -> None:  # type: ignore[
     cells = json.loads((out / "results.json").read_text())["cells"]
     assert [c["trained_by"] for c in cells] == ["aft-attention"] * 4 + ["cnn-ae"] * 2
     assert len({c["threshold"] for c in cells}) == 6  # each mode fits its own threshold
-    assert len(list((out / "cache" / "models").iterdir())) == 2
+    models = list((out / "cache" / "models").iterdir())
+    assert len(models) == 2
+    # a +glr row reuses each: the training windows' residual is kept beside it for the row's
+    # threshold; without such a row (the smoke run's cnn-ae) nothing is kept
+    assert all((m / "fit_residual.npz").is_file() for m in models)
     assert cells[1]["fit_s"] >= cells[0]["fit_s"]  # the shared training's time is counted
     assert cells[5]["fit_s"] >= cells[4]["fit_s"]
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -51,6 +53,29 @@ def test_glr_row_is_the_same_network_scored_by_the_scan(data) -> None:  # type: 
         s.extras["residual"]))
     np.testing.assert_array_equal(s.point, s.channel.max(axis=2))
     np.testing.assert_array_equal(s.instance, s.point.max(axis=1))
+
+
+def test_switching_to_the_scan_reuses_the_training_residual(data, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    train, test = data
+    paper = create("lstm-ed", tiny("lstm-ed+glr")).fit(train.X)
+    direct = create("lstm-ed+glr", tiny("lstm-ed+glr")).fit(train.X)
+    network = type(paper).raw_outputs
+
+    def no_network(self, X):  # type: ignore[no-untyped-def]
+        raise AssertionError("the network ran over the training windows again")
+
+    monkeypatch.setattr(type(paper), "raw_outputs", no_network)
+    switched = paper.rescored(train.X, scoring="glr")  # the kept residual, scanned
+    assert switched.threshold_ == direct.threshold_
+    np.testing.assert_array_equal(switched.decision_scores_, direct.decision_scores_)
+    with pytest.raises(AssertionError, match="network ran"):  # other windows: the network runs
+        paper.rescored(test.X, scoring="glr")
+    monkeypatch.setattr(type(paper), "raw_outputs", network)
+    assert paper.rescored(test.X, scoring="glr").threshold_ != switched.threshold_
+    # trained again on the same windows: the residual of the earlier network is not reused
+    longer = {**tiny("lstm-ed+glr"), "epochs": tiny("lstm-ed+glr").get("epochs", 1) + 1}
+    direct.config = replace(direct.config, epochs=longer["epochs"])
+    assert direct.fit(train.X).threshold_ == create("lstm-ed+glr", longer).fit(train.X).threshold_
 
 
 def test_mscred_residual_is_scanned_per_step(data) -> None:  # type: ignore[no-untyped-def]

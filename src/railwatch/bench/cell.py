@@ -101,13 +101,19 @@ def fit_or_reuse(
     registry name of the cell that trained the network.
     """
     from railwatch.detectors.registry import load_detector
+    from railwatch.detectors.training import TorchDetector
 
-    folder = cache / "models" / training_key(det, cell, preset)
+    key = training_key(det, cell, preset)
+    folder = cache / "models" / key
     info_path = folder / "fit.json"
     if info_path.exists():
         try:
             info = json.loads(info_path.read_text())
             trained = load_detector(folder)
+            if isinstance(trained, TorchDetector) and (folder / FIT_RESIDUAL).exists():
+                with np.load(folder / FIT_RESIDUAL) as kept:
+                    trained.fit_residual_ = kept["residual"]
+                    trained.fit_digest_ = str(kept["digest"])
             started = time.perf_counter()
             reused = trained.rescored(X, context, **{f: getattr(det.config, f)
                                                      for f in det.scoring_fields})
@@ -124,11 +130,35 @@ def fit_or_reuse(
     private = folder.with_name(f".{folder.name}.{os.getpid()}-{time.monotonic_ns()}")
     det.save(private, extra_files={"fit.json": json.dumps({"fit_s": fit_s,
                                                            "detector": cell.detector})})
+    if isinstance(det, TorchDetector) and det.fit_residual_ is not None and \
+            _glr_row_reuses(key, cell, preset):
+        np.savez(private / FIT_RESIDUAL, residual=det.fit_residual_,
+                 digest=np.array(det.fit_digest_))
     try:
         os.rename(private, folder)
     except OSError:  # another cell saved it first
         shutil.rmtree(private, ignore_errors=True)
     return det, fit_s, cell.detector
+
+
+#: Kept beside a shared model whose training a GLR-scored row reuses: the signed residual of the
+#: training windows, so that the row refits its threshold without running the network over them
+#: again (``TorchDetector.fit_residual_``; 75 of the quick run's 91 s beyond training and scoring).
+FIT_RESIDUAL = "fit_residual.npz"
+
+
+def _glr_row_reuses(key: str, cell: Cell, preset: Preset) -> bool:
+    """Whether another row of ``preset``, scored by the GLR scan, reuses the model trained
+    under ``key`` by ``cell``."""
+    from railwatch.detectors.api import GLR_SCORING
+
+    for name in (d for d in preset.detectors if d != cell.detector):
+        other = Cell(cell.stage, name, cell.seed)
+        det = cell_detector(other, preset)
+        if getattr(det.config, "scoring", None) == GLR_SCORING and \
+                training_key(det, other, preset) == key:
+            return True
+    return False
 
 
 def cell_detector(cell: Cell, preset: Preset) -> Detector:
