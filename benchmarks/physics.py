@@ -13,7 +13,8 @@ found (an event overlapping the sensor wheelset's crossing, within 0.1 s) by kin
 false events per minute (events on the coach's other wheelsets' crossings or on features are
 counted apart), beside the **oracle**: the oracle detector (a spike and 5-20-sample box GLR
 test) on each pass less its clean twin, divided by the sensor noise (it knows everything but
-the noise), its threshold at 0.1 windows per minute of pure sensor noise, as the model's.
+the noise), its threshold at 0.1 windows per minute of pure sensor noise, as the model's; and
+context-glr, trained and scanned the same way with every default (not the map's detector).
 2. **The map** from 1, 2, 5 and 10 passes (consecutive passes from pass 3 on), with positions
 from odometry alone (the simulator's default: each pass's start 1 m off, its scale 0.05 % off, a
 walk of 0.3 m per √km, and every pass sharing a 2-m offset and a 0.1 % scale error) and
@@ -100,11 +101,18 @@ def gnss_aided(folder: Path) -> Path:
     return out
 
 
-def scanned(folder: Path) -> Path:
+#: The map's detector (the README's workflow), and the other detectors whose one pass the page
+#: shows beside it (each with every default of `train`, in folders of their own).
+MAP_DETECTOR = "matched-filter"
+ALSO = ("context-glr",)
+
+
+def scanned(folder: Path, detector: str = MAP_DETECTOR) -> Path:
     """The README's workflow: train on passes 1-2 with defaults, scan every pass."""
-    model, scan = folder / "model", folder / "scan"
+    tag = "" if detector == MAP_DETECTOR else f"-{detector}"
+    model, scan = folder / f"model{tag}", folder / f"scan{tag}"
     if not (model / "recording.json").exists():
-        cli("train", "--detector", "matched-filter", "--recordings",
+        cli("train", "--detector", detector, "--recordings",
                   *[str(folder / f"pass{i + 1:02d}.parquet") for i in range(TRAIN)],
                   "--layout", str(folder / "layout.toml"), "--out", str(model))
     if not (scan / "events.csv").exists():
@@ -187,11 +195,12 @@ def _oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
 
 
 def single_pass(folders: list[Path]) -> dict[str, Any]:
-    """Per crossing of every test pass: kind, depth, speed, found by the detector and by the
-    oracle; per pass: false events per minute."""
+    """Per crossing of every test pass: kind, depth, speed, found by the map's detector, by each
+    of :data:`ALSO` and by the oracle; per pass: false events per minute of each."""
     from railwatch.evaluation.crossings import score_events
 
     crossings, passes = [], []
+    scans = {"found": "scan", **{d: f"scan-{d}" for d in ALSO}}
     for folder in folders:
         echoes = echo_offsets(folder)
         for i in range(TRAIN, PASSES):
@@ -199,17 +208,18 @@ def single_pass(folders: list[Path]) -> dict[str, Any]:
             defects = read_csv(folder / f"{name}.defects.csv")
             features = read_csv(folder / f"{name}.features.csv")
             mins = minutes(folder, name)
-            ours = score_events(read_csv(folder / "scan" / f"{name}.events.csv"), defects,
-                                features, mins, echoes)
+            got = {key: score_events(read_csv(folder / scan / f"{name}.events.csv"), defects,
+                                     features, mins, echoes) for key, scan in scans.items()}
             best = score_events(oracle_events(folder, name), defects, features, mins, echoes)
             passes.append({"track": folder.name, "pass": name, "minutes": mins,
-                           "false_per_min": ours.false_per_minute,
+                           "false_per_min": got["found"].false_per_minute,
                            "oracle_false_per_min": best.false_per_minute,
-                           "explained": ours.explained})
+                           "explained": got["found"].explained,
+                           **{f"{d} false_per_min": got[d].false_per_minute for d in ALSO}})
             for r in defects:
                 crossings.append({"kind": r["kind"], "depth": abs(float(r["depth_mm"])),
                                   "speed": float(r["speed_ms"]),
-                                  "found": ours.found[int(r["defect"])],
+                                  **{key: ev.found[int(r["defect"])] for key, ev in got.items()},
                                   "oracle": best.found[int(r["defect"])]})
     return {"crossings": crossings, "passes": passes}
 
@@ -384,6 +394,9 @@ def main() -> None:
     folders["GNSS-aided"] = [gnss_aided(f) for f in folders["odometry alone"]]
     for f in [*folders["GNSS-aided"], *folders["odometry alone"]]:
         scanned(f)
+    for f in folders["GNSS-aided"]:  # one pass: events in time, whatever the positions
+        for detector in ALSO:
+            scanned(f, detector)
     one = single_pass(folders["GNSS-aided"])
     kinds = {r["kind"] for r in one["crossings"]}
     lines = ["# The physics world at field scale\n",
@@ -393,7 +406,11 @@ def main() -> None:
     lines += world_checks()
     # ---- one pass
     lines += ["## One pass: `detect` with defaults\n",
-              "| defects | found | oracle |", "|---|---|---|"]
+              f"The map's detector ({MAP_DETECTOR}); beside it "
+              + ", ".join(ALSO) + ", trained and scanned the same way with every default of "
+              "`train` (its threshold the same rule's), and the oracle.\n",
+              f"| defects | {MAP_DETECTOR} | " + " | ".join(ALSO) + " | oracle |",
+              "|---|---|" + "---|" * len(ALSO) + "---|"]
     groups = [("squats >= 0.5 mm", lambda c: c["kind"] == "squat" and c["depth"] >= 0.5),
               ("squats 0.3-0.5 mm", lambda c: c["kind"] == "squat" and 0.3 <= c["depth"] < 0.5),
               ("squats < 0.3 mm", lambda c: c["kind"] == "squat" and c["depth"] < 0.3),
@@ -403,14 +420,17 @@ def main() -> None:
               ("corrugation", lambda c: c["kind"] == "corrugation")]
     for label, pick in groups:
         rows = [c for c in one["crossings"] if pick(c)]
-        lines.append(f"| {label} | {pct([c['found'] for c in rows])} | "
-                     f"{pct([c['oracle'] for c in rows])} |")
+        lines.append(f"| {label} | " + " | ".join(pct([c[k] for c in rows]) for k in
+                                                   ("found", *ALSO, "oracle")) + " |")
     fpm = [p["false_per_min"] for p in one["passes"]]
     ofpm = [p["oracle_false_per_min"] for p in one["passes"]]
+    also = "".join(f"; {d} {np.mean(v):.2f}, {max(v):.2f}" for d in ALSO
+                   for v in [[p[f"{d} false_per_min"] for p in one["passes"]]])
     lines += ["", f"False events per minute, each of the {len(fpm)} test passes: mean "
               f"{np.mean(fpm):.2f}, highest {max(fpm):.2f} (oracle {np.mean(ofpm):.2f}, "
-              f"{max(ofpm):.2f}); events on the other wheelsets' crossings or on features, "
-              f"apart: {np.mean([p['explained'] for p in one['passes']]):.1f} per pass.", ""]
+              f"{max(ofpm):.2f}{also}); events on the other wheelsets' crossings or on "
+              f"features, apart: {np.mean([p['explained'] for p in one['passes']]):.1f} per "
+              "pass.", ""]
     # ---- maps
     json_out: dict[str, Any] = {"single_pass": one, "maps": {}}
     lines += ["## The map: the README's workflow with defaults\n",
