@@ -36,7 +36,8 @@ and a90/95, the oracle's beside.
 5. **Speed**: `detect`'s real-time factor on one core on a 2 kHz six-channel test pass, and the
 time to simulate a 5-km pass.
 
-Run: `make bench-physics` (about 40 minutes on 2 cores; every step is kept in --work and reused).
+Run: `make bench-physics` (about 75 minutes on 2 cores, context-glr's training 10 of them per
+track; every step is kept in --work and reused).
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ from benchmarks.common import command, railwatch, read_csv
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
 PAGE = "docs/results/physics/physics.md"
-MINUTES = 40
+MINUTES = 75
 #: The CLI in a child process, what it reported captured (detect's line gives the speed).
 cli = partial(railwatch, quiet=False, capture=True)
 
