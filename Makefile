@@ -54,7 +54,7 @@ benchmarks:  ## list the research benchmarks: what each measures, its page, its 
 bench-%: $(STAMP)  ## run one: make bench-physics = python -m benchmarks physics (ARGS='...': its options)
 	$(BIN)/python -m benchmarks $(subst -,_,$*) $(ARGS)
 
-bench-standard: $(STAMP)  ## the standard benchmark (3 seeds, 3,000 test windows; ~1 h on 2 cores)
+bench-standard: $(STAMP)  ## the standard benchmark (3 seeds, 3,000 test windows; ~2 h on 2 cores, resumable)
 	$(BIN)/railwatch bench --preset standard --out runs/standard
 
 screenshot:  ## render REPORT in headless Chromium into SHOT (installs Debian's chromium if missing)
