@@ -14,7 +14,7 @@ SHOT ?= docs/report-screenshot.png
 
 .PHONY: run data test test-latest lock lint benchmarks bench-standard screenshot clean
 
-run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, 12.7-13.1 min on 2 cores from a fresh clone)
+run: $(STAMP)  ## main job: the quick benchmark (8 stages x every detector, 9.5-12.9 min on 2 cores from a fresh clone)
 	$(BIN)/railwatch bench --preset quick --out $(OUT)
 
 data: $(STAMP)  ## generate all eight stages (3,000 windows each) and draw Figure 1
