@@ -118,6 +118,20 @@ def _retime(store: ResultStore, preset: Preset,
     return count
 
 
+def finished_grid(whole: Preset, out: Path, asked: Preset) -> Preset:
+    """The grid whose report a folder can give: every stage and detector of ``whole`` with
+    finished cells in ``out``, when those form a whole grid; else ``asked`` (a re-timed part of
+    a run then rewrites the report of the run, not of the part)."""
+    from dataclasses import replace
+
+    store = ResultStore(out)
+    done = [c for c in cells(whole) if store.done(whole, c)]
+    found = replace(whole, stages=tuple(sorted({c.stage for c in done})),
+                    detectors=tuple(d for d in whole.detectors
+                                    if any(c.detector == d for c in done)))
+    return found if done and len(done) == len(cells(found)) else asked
+
+
 def write_run_report(out: Path, preset: Preset, records: list[dict[str, Any]],
                      wall_s: float | None = None) -> Path:
     """Hand a run's finished cells to the report (:mod:`railwatch.report.run_report`): records,

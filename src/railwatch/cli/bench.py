@@ -45,8 +45,8 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
       railwatch bench --preset smoke --out runs/smoke --stages 1,7 --detectors cnn-ae,oracle
     """
     from railwatch.bench.cell import cells
+    from railwatch.bench.grid import finished_grid, run_grid, write_run_report
     from railwatch.bench.grid import retime as retime_cells
-    from railwatch.bench.grid import run_grid, write_run_report
     from railwatch.bench.presets import load_preset
     from railwatch.bench.store import ResultStore
 
@@ -81,7 +81,7 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
             bar.set_description("retime")
             count = retime_cells(p, out, on_cell=lambda *_: bar.update(1))
             reused = total - count
-            p = _finished_grid(preset, seeds, out, p)
+            p = finished_grid(load_preset(preset, seeds=seeds), out, p)
             records = run_grid(p, out)  # every cell is finished: this only reads them
         else:
             records = run_grid(p, out, executor=executor, address=address, on_cell=on_cell)
@@ -92,21 +92,6 @@ def bench(obj: dict, preset: str, out: Path, stages: str | None, detector_names:
     info(f"{total} cells ({reused} reused from an earlier run) in "
          f"{(time.perf_counter() - started) / 60:.1f} min")
     click.echo(f"report: {report}")
-
-
-def _finished_grid(preset: str, seeds: int | None, out: Path, asked: Any) -> Any:
-    """The grid a re-timed folder's report covers: every stage and detector of the preset with
-    finished cells in ``out``, when those form a whole grid; else the ``asked`` one."""
-    from railwatch.bench.cell import cells
-    from railwatch.bench.presets import load_preset
-    from railwatch.bench.store import ResultStore
-
-    store, whole = ResultStore(out), load_preset(preset, seeds=seeds)
-    done = [c for c in cells(whole) if store.done(whole, c)]
-    found = load_preset(preset, seeds=seeds, stages=sorted({c.stage for c in done}),
-                        detectors=tuple(d for d in whole.detectors
-                                        if any(c.detector == d for c in done)))
-    return found if len(done) == len(cells(found)) else asked
 
 
 def _summary(records: list[dict[str, Any]], detectors: tuple[str, ...]) -> None:
