@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 import yaml
+
+from railwatch.trackmap import PROFILE_KIND
 
 TINY = Path(__file__).parents[1] / "configs" / "tiny"
 
@@ -55,3 +58,55 @@ def rough_patches(windows: np.ndarray, seed: int = 0) -> np.ndarray:
         start = int(rng.integers(0, w.shape[0] - length))
         w[start:start + length, 0] += rng.normal(0.0, 1.0, length)
     return rough
+
+
+# ------------------------------------------------------------ scan folders for the track map
+def profiles(n: int, defects: np.ndarray, seen: list[int] | None = None, bump: float = 1.5,
+             loud: tuple[float, float] | None = None, seed: int = 0,
+             length: float = 5_000.0,
+             ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Score profiles of ``n`` passes sampled every 0.25 m (exponential noise, 0.3 m of
+    position jitter per pass): each defect adds ``bump`` times the noise scale on the passes
+    in ``seen`` (all by default), a loud stretch triples every pass's scores."""
+    rng = np.random.default_rng(seed)
+    xs, scores = [], []
+    for i in range(n):
+        x = np.arange(0, length, 0.25) + rng.uniform(0, 0.25)
+        s = rng.exponential(size=len(x))
+        if seen is None or i in seen:
+            for d in defects:
+                near = np.abs(x - d - rng.normal(0, 0.3)) <= 0.4
+                s[near] += bump * rng.exponential(size=near.sum()) + bump
+        if loud is not None:
+            s[(x >= loud[0]) & (x <= loud[1])] *= 3.0
+        xs.append(x)
+        scores.append(s)
+    return xs, scores
+
+
+def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
+               channel_score: np.ndarray, channels: tuple[str, ...], groups: tuple[str, ...],
+               defects: np.ndarray) -> None:
+    """One recording of a scan folder as ``railwatch scan`` writes it: its stretch, an event
+    at each defect (the highest channel's score there), its score profile."""
+    (folder / f"{name}.scan.json").write_text(json.dumps(
+        {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
+         "profile": PROFILE_KIND}))
+    rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
+    for d in defects:
+        j = int(np.argmin(np.abs(x - d)))
+        rows.append(f"1.0,1.1,1.05,axle_1,axle,{channel_score[j].max():.3f},3.0,{x[j]:.3f}")
+    (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
+    np.savez(folder / f"{name}.profile.npz", time_s=time_s, position_m=x,
+             channel_score=channel_score.astype(np.float32), channels=np.array(channels),
+             groups=np.array(groups))
+
+
+def scan_folder(folder: Path, xs: list[np.ndarray], scores: list[np.ndarray],
+                defects: np.ndarray) -> None:
+    """A scan folder of passes whose scores ``scores[i]`` are axle_1's (axle_2 has half of
+    them, body_1 none)."""
+    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        write_pass(folder, f"pass{i:02d}", x, x / 20.0,
+                   np.stack([s, 0.5 * s, np.zeros_like(s)], axis=1),
+                   ("axle_1", "axle_2", "body_1"), ("axle", "axle", "body"), defects)

@@ -14,6 +14,7 @@ from railwatch import trackmap as tm
 from railwatch.errors import RailwatchError
 from railwatch.evaluation import maps as em
 from railwatch.trackmap import fusion
+from support import profiles, scan_folder, write_pass
 
 LENGTH = 5_000.0
 
@@ -72,28 +73,6 @@ def test_combine_is_stouffers_method() -> None:
         assert 10 ** -evidence[j] == pytest.approx(expected, rel=1e-9)
 
 
-def profiles(n: int, defects: np.ndarray, seen: list[int] | None = None, bump: float = 1.5,
-             loud: tuple[float, float] | None = None, seed: int = 0,
-             ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Score profiles of ``n`` passes sampled every 0.25 m (exponential noise, 0.3 m of
-    position jitter per pass): each defect adds ``bump`` times the noise scale on the passes
-    in ``seen`` (all by default), a loud stretch triples every pass's scores."""
-    rng = np.random.default_rng(seed)
-    xs, scores = [], []
-    for i in range(n):
-        x = np.arange(0, LENGTH, 0.25) + rng.uniform(0, 0.25)
-        s = rng.exponential(size=len(x))
-        if seen is None or i in seen:
-            for d in defects:
-                near = np.abs(x - d - rng.normal(0, 0.3)) <= 0.4
-                s[near] += bump * rng.exponential(size=near.sum()) + bump
-        if loud is not None:
-            s[(x >= loud[0]) & (x <= loud[1])] *= 3.0
-        xs.append(x)
-        scores.append(s)
-    return xs, scores
-
-
 def places(fused: fusion.Fused, xs, scores, rate: float = 0.1) -> np.ndarray:  # type: ignore[no-untyped-def]
     runs = fusion.runs_above(fused.evidence, fused.level(rate), 8)
     return np.array([fusion.peak_position(fused, xs, scores, r) for r in runs])
@@ -139,34 +118,6 @@ def test_seen_on_9_of_10_is_more_evident_than_1_of_10() -> None:
     e9 = fused.evidence[np.abs(fused.grid - 1000) <= 2].max()
     e1 = fused.evidence[np.abs(fused.grid - 3000) <= 2].max()
     assert e9 > e1 and fused.false_per_km(e9)[0] < fused.false_per_km(e1)[0]
-
-
-def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
-               channel_score: np.ndarray, channels: tuple[str, ...], groups: tuple[str, ...],
-               defects: np.ndarray) -> None:
-    """One recording of a scan folder as ``railwatch scan`` writes it: its stretch, an event
-    at each defect (the highest channel's score there), its score profile."""
-    (folder / f"{name}.scan.json").write_text(json.dumps(
-        {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
-         "profile": tm.PROFILE_KIND}))
-    rows = ["start_s,end_s,peak_s,channel,group,score,threshold,position_m"]
-    for d in defects:
-        j = int(np.argmin(np.abs(x - d)))
-        rows.append(f"1.0,1.1,1.05,axle_1,axle,{channel_score[j].max():.3f},3.0,{x[j]:.3f}")
-    (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
-    np.savez(folder / f"{name}.profile.npz", time_s=time_s, position_m=x,
-             channel_score=channel_score.astype(np.float32), channels=np.array(channels),
-             groups=np.array(groups))
-
-
-def scan_folder(folder: Path, xs: list[np.ndarray], scores: list[np.ndarray],
-                defects: np.ndarray) -> None:
-    """A scan folder of passes whose scores ``scores[i]`` are axle_1's (axle_2 has half of
-    them, body_1 none)."""
-    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
-        write_pass(folder, f"pass{i:02d}", x, x / 20.0,
-                   np.stack([s, 0.5 * s, np.zeros_like(s)], axis=1),
-                   ("axle_1", "axle_2", "body_1"), ("axle", "axle", "body"), defects)
 
 
 def test_fused_map_of_a_scan_folder(tmp_path: Path) -> None:

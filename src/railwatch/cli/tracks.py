@@ -107,7 +107,14 @@ neighbourhood, is in the top 1 % of the pass), passes_with_event, passes_covered
 confidence (95 % lower bound of the share), median_score, channel (the rail, named by the
 channel over it on a pass up the map; with --sides group the channel most passes had highest
 there), group, kind_guess (spike-like or deviation-like, from the events' duration),
-first_seen, last_seen (recording names).
+first_seen, last_seen (recording names), asset, asset_kind (with --assets: the asset the place
+lies on, or "unexplained": a candidate defect).
+\b
+--assets ASSETS.csv: the asset register, one row per asset: kind (switch, crossing, insulated
+joint, weld, bridge transition, level crossing or your own), position_m (and length_m) or
+start_m and end_m, id (optional). It also writes MAP.assets.csv: every asset on the line with
+its response (the median over the passes of its highest score) and kind_z (how far above the
+other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of the kind.
 \b
 --method votes ranks the places where events cluster by the share of passes with an event
 (evidence and false_per_km empty); it needs only the events.""")
@@ -143,13 +150,21 @@ first_seen, last_seen (recording names).
 @click.option("--min-share", type=click.FloatRange(0, 1), default=0.3, show_default=True,
               help="votes: report a place seen on at least this share of the passes that "
                    "covered it, and on 2 passes at least (one pass confirms nothing).")
+@click.option("--assets", "assets_file", type=click.Path(path_type=Path),
+              help="Asset register (CSV, see below): label every place with the asset it lies "
+                   "on or 'unexplained', and write MAP.assets.csv.")
+@click.option("--asset-tolerance-m", type=click.FloatRange(min=0), default=5.0,
+              show_default=True,
+              help="A place lies on an asset within this distance of its stretch (the map's "
+                   "positions carry the passes' common odometry error: 1-3 m).")
 @click.option("--truth", type=click.Path(path_type=Path),
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
                    "false locations per km.")
 def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
               tolerance_m: float, max_offset_m: float, sides: str, min_events: str,
-              min_share: float, truth: Path | None) -> None:
+              min_share: float, assets_file: Path | None, asset_tolerance_m: float,
+              truth: Path | None) -> None:
     """Turn repeated passes over one line into ranked places on the track.
 
     \b
@@ -161,6 +176,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     against each other at random.
     Example:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
+      railwatch track-map --events scan/ --out map.csv --assets register.csv
     """
     from railwatch import trackmap as tm
     from railwatch.evaluation import maps as em
@@ -172,9 +188,23 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
         writable_file(plot)
     passes = tm.read_scan(events_dir)
     truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
+    register = tm.assets.read_assets(assets_file) if assets_file else None
+    assets_out = out.with_name(out.stem + ".assets.csv")
+    if register is not None:
+        writable_file(assets_out)
     made = tm.maps.make_map(passes, method, tolerance_m, max_offset_m, sides, min_events,
                             false_per_km, min_share)
+    labelled = None
+    if register is not None:
+        labelled = tm.assets.apply(made.places, register, tm.covered_range(passes),
+                                   asset_tolerance_m, made.fused)
+        shown = {id(p) for p in made.reported}
+        made.reported = [q for p, q in zip(made.places, labelled.places, strict=True)
+                         if id(p) in shown]
+        made.places = labelled.places
     tm.write_map(out, made.places)
+    if labelled is not None:
+        tm.assets.write_assets(assets_out, labelled)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
 
@@ -182,7 +212,10 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
                                      made.level), plot)
     line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
             f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
+    if labelled is not None:
+        line += "; " + tm.assets.summary(labelled, made.reported, register)
     if truth is not None and truth_m is not None:
         line += "; " + em.against_truth(made.reported, truth_m, truth,
                                         *tm.covered_range(passes), tolerance_m)
-    info(line + f"; wrote {out}" + (f" and {plot}" if plot else ""))
+    info(line + f"; wrote {out}" + (f", {assets_out}" if labelled is not None else "")
+         + (f" and {plot}" if plot else ""))

@@ -10,13 +10,15 @@ a map of places to inspect.
 :mod:`~railwatch.trackmap.fusion`          evidence fused across passes, and its calibration
 :mod:`~railwatch.trackmap.maps`            the map: fused (default) or votes, and what it
                                            reports
+:mod:`~railwatch.trackmap.assets`          the asset register: places labelled by the assets
+                                           they lie on, assets measured against their kind
 =========================================  ==================================================
 
 Scoring a map against the true defects is evaluation: :mod:`railwatch.evaluation.maps`. How the
 map works and its choices: ``docs/track-map.md``.
 """
 
-from railwatch.trackmap import fusion, maps
+from railwatch.trackmap import assets, fusion, maps
 from railwatch.trackmap.align import (
     align,
     chance_gain,
@@ -51,7 +53,7 @@ from railwatch.trackmap.maps import (
     wilson_lower,
 )
 
-__all__ = ["fusion", "maps", "COMBINED", "EVENTS_SUFFIX", "MAP_FIELDS", "MIN_EVENTS",
+__all__ = ["assets", "fusion", "maps", "COMBINED", "EVENTS_SUFFIX", "MAP_FIELDS", "MIN_EVENTS",
            "PROFILE_KIND", "PROFILE_SUFFIX", "SCAN_SUFFIX", "SIDES", "Location", "PassEvents",
            "ScoreProfile", "align", "chance_gain", "covered_range", "fit_transform", "fused_map",
            "min_events_for", "rail_scores", "read_scan", "refine_by_profiles", "reported",

@@ -36,7 +36,8 @@ PROFILE_KIND = "central-window"
 #: Columns of the map (one row per location, most confident first).
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
               "passes_seen", "passes_with_event", "passes_covered", "share", "confidence",
-              "median_score", "channel", "group", "kind_guess", "first_seen", "last_seen")
+              "median_score", "channel", "group", "kind_guess", "first_seen", "last_seen",
+              "asset", "asset_kind")
 COMBINED = "events.csv"  # every recording's events, a ``recording`` column first
 #: The arrays of ``NAME.profile.npz``: each sample's time (s), recorded position (m, NaN
 #: without one) and score per channel (n, C), and the channels' names and sensor groups.
@@ -117,6 +118,8 @@ class Location:
     first_seen: str
     last_seen: str
     passes_with_event: int = 0  # passes with an event over the place (votes: passes_seen)
+    asset: str = ""  # with a register (track-map --assets): the asset's id or "unexplained"
+    asset_kind: str = ""
 
 
 # ----------------------------------------------------------------------------- reading

@@ -38,7 +38,7 @@ throws that away; summing each pass's evidence keeps it. Per pass and place:
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,6 +85,10 @@ class Fused:
     null_km: float  # km of track × rounds behind null_counts
     kinds: tuple[str, ...] = ()  # names of by_kind's rows (sensor groups or channels)
     sides: str = ""  # how the track map laid the passes' channels on them (track_map.SIDES)
+    pass_x: list[NDArray[np.float64]] = field(default_factory=list)  # each pass's samples at
+    # their map positions (set by the track map)
+    pass_score: list[NDArray[np.float64]] = field(default_factory=list)  # and their scores
+    # (the highest sensor group's)
 
     def false_per_km(self, evidence: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Expected places per km at least this strong among passes without a repeating

@@ -209,6 +209,7 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     fused, rule, kind_groups = max(candidates, key=lambda c: _agreement(c[0], gap))
     fused.sides = rule
     point = [np.nanmax(pg, axis=1) for pg in per_group]
+    fused.pass_x, fused.pass_score = xs, point
     events_at = [a + b * p.position for p, (a, b) in zip(passes, transforms, strict=True)]
     found: list[dict[str, Any]] = []
     for run in fusion.runs_above(fused.evidence, fused.level(list_per_km), gap):
