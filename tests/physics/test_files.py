@@ -49,6 +49,17 @@ def test_simulate_writes_passes_twins_and_truth(tmp_path: Path, capsys) -> None:
             assert 15 <= float(r["speed_ms"]) <= 25
             assert r["channel"] in ("axle_left", "axle_right")
     assert (out / "track.features.csv").is_file() and (out / "pass01.features.csv").is_file()
+    # The features as an asset register that track-map --assets reads.
+    from railwatch.trackmap.assets import read_assets
+
+    with open(out / "track.features.csv", newline="") as fh:
+        features = list(csv.DictReader(fh))
+    register = read_assets(out / "track.assets.csv")
+    assert len(register.assets) == len(features) > 0 and not register.ignored
+    assert {a.kind for a in register.assets} <= {"switch", "crossing", "bridge transition",
+                                                 "level crossing"}
+    assert sorted(a.start_m for a in register.assets) == sorted(
+        float(r["position_m"]) for r in features)
 
 
 def test_simulate_is_reproducible(tmp_path: Path) -> None:

@@ -51,7 +51,7 @@ def test_a_bad_register_is_one_line(tmp_path: Path, text: str, said: str) -> Non
 
 def test_touching_assets_do_not_overlap(tmp_path: Path) -> None:
     reg = read_assets(write(tmp_path / "r.csv", "kind,position_m,length_m\n"
-                            "crossing,535.6855,0.405\nswitch,536.0905,0.4446\n"))
+                            "crossing,535.6855,0.405\nswitch,536.0904,0.4446\n"))
     assert [a.kind for a in reg.assets] == ["crossing", "switch"]
 
 

@@ -174,7 +174,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     score on most passes, even below the event threshold; a false event or a loud stretch of
     one pass does not repeat. What counts as evident is measured by shifting the passes
     against each other at random.
-    Example:
+    Examples:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
       railwatch track-map --events scan/ --out map.csv --assets register.csv
     """

@@ -13,6 +13,9 @@ what only a physics world can give:
                             sensor noise and its odometry's error (same columns; the position
                             is the true one)
 ``track.features.csv``      the features along the track
+``track.assets.csv``        the same as an asset register (``track-map --assets``): id, kind
+                            (switch, crossing, bridge transition, level crossing), position_m,
+                            length_m
 ``physics.json``            every setting (vehicle, track, spectra, sensors, each pass's
                             direction and speed range), the sensor noise per channel, and per
                             pass where a wheel left the rail and its highest wheel load
@@ -65,6 +68,20 @@ ODOMETRY_ALONE = Positioning(Odometry(1.0, 0.0005, 0.3), common_offset_m=2.0, co
 GNSS_AIDED = Positioning(Odometry(1.0, 0.0001, 0.1))
 
 FloatArray = NDArray[np.float64]
+
+#: The features' kinds as an asset register names them (``track.assets.csv``).
+REGISTER_KINDS = {"switch": "switch", "crossing": "crossing", "transition": "bridge transition",
+                  "level-crossing": "level crossing"}
+REGISTER_FIELDS = ("id", "kind", "position_m", "length_m")
+
+
+def write_register(path: Path, features: list[dict[str, Any]]) -> Path:
+    """The track's features as the asset register a railway keeps (``track-map --assets``):
+    ids F0, F1, ... (the features' numbers)."""
+    return atomic_csv(path, REGISTER_FIELDS, (
+        {"id": f"F{r['defect']}", "kind": REGISTER_KINDS.get(str(r["kind"]), str(r["kind"])),
+         "position_m": r["position_m"], "length_m": r["length_m"]} for r in features))
+
 
 #: Columns of a pass's crossings tables (passNN.defects.csv, passNN.features.csv).
 CROSSING_FIELDS = ("defect", "kind", "time_s", "duration_s", "center_s", "position_m",
@@ -120,6 +137,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
         if progress is not None:
             progress(1)
     atomic_csv(out / "track.features.csv", ITEM_FIELDS, [it.row() for it in track.features])
+    write_register(out / "track.assets.csv", [it.row() for it in track.features])
     info = {"seed": seed, "passes": summaries, "fs": plan.fs, "speed_ms": list(plan.speed_ms),
             "push_pull": plan.push_pull, "positioning": asdict(positioning),
             "sensor_noise_ms2": dict(zip(CHANNELS, world.sensors.noise().tolist(), strict=True)),
@@ -166,7 +184,7 @@ def reposition(folder: str | os.PathLike[str], out: str | os.PathLike[str],
     info = json.loads((folder / "physics.json").read_text())
     layout = load_layout(folder / "layout.toml")
     (out / "twins").mkdir(parents=True, exist_ok=True)
-    for name in ("layout.toml", "track.features.csv"):
+    for name in ("layout.toml", "track.features.csv", "track.assets.csv"):
         shutil.copy(folder / name, out / name)
     for entry in info["passes"]:
         name, seed = entry["pass"], int(entry["seed"])

@@ -42,6 +42,9 @@ from railwatch.trackmap.fusion import Fused
 KINDS = ("switch", "crossing", "insulated joint", "weld", "bridge transition", "level crossing")
 #: Columns a register may have; others are ignored and named.
 COLUMNS = ("id", "kind", "position_m", "length_m", "start_m", "end_m")
+#: Assets overlapping by more than this (m) are an error; less is a register's rounding (a
+#: turnout's switch written to end where its crossing nose starts, each to 0.1 mm).
+OVERLAP_M = 0.01
 #: The label of a place on no asset.
 UNEXPLAINED = "unexplained"
 #: An asset this many of its kind's spreads above the kind's median response is abnormal.
@@ -126,7 +129,7 @@ def read_assets(path: str | os.PathLike[str]) -> Register:
                              "appear more than once)")
     assets.sort(key=lambda a: (a.start_m, a.end_m))
     for a, b in zip(assets, assets[1:], strict=False):
-        if b.start_m < a.end_m:
+        if b.start_m < a.end_m - OVERLAP_M:
             raise RailwatchError(f"--assets {path}: assets {a.id} ({a.start_m:g}-{a.end_m:g} m)"
                                  f" and {b.id} ({b.start_m:g}-{b.end_m:g} m) overlap: give "
                                  "each stretch of track to one asset")
