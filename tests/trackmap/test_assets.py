@@ -119,7 +119,8 @@ def test_track_map_with_a_register(tmp_path: Path, capsys) -> None:  # type: ign
                      "X1,crossing,1798,3\nX2,crossing,2500,3\nX9,switch,9000,30\n")
     out = tmp_path / "m.csv"
     assert main(["track-map", "--events", str(tmp_path), "--out", str(out),
-                 "--assets", str(register)]) == 0
+                 "--assets", str(register), "--plot", str(tmp_path / "m.png")]) == 0
+    assert (tmp_path / "m.png").stat().st_size > 10_000
     err = capsys.readouterr().err
     assert "3 reported unexplained, 1 on assets (2 assets on the line, 1 off the stretch " \
            "the passes covered: left out)" in err, err

@@ -146,3 +146,52 @@ def test_bad_input_is_one_line(track, tmp_path: Path, capsys) -> None:  # type: 
     code = main(["-q", "track-map", "--events", str(tmp_path), "--out", str(tmp_path / "m.csv")])
     err = capsys.readouterr().err
     assert code == 1 and "holds no scanned recordings" in err and err.count("\n") == 1
+
+
+def test_dated_passes_from_a_table_are_kept_and_ordered(track, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """scan --dates dates the recordings (a finished one without a new scan); track-map orders
+    the passes by date and maps only those between --since and --until."""
+    folder, paths = track
+    out = tmp_path / "scan"
+    assert main(["-q", "scan", "--model", str(folder / "model"), "--recordings",
+                 *map(str, paths), "--out", str(out)]) == 0
+    undated = [json.loads((out / f"{p.stem}.scan.json").read_text())["started"] for p in paths]
+    assert undated == [None] * 4
+    dates = tmp_path / "dates.csv"  # pass 1 recorded last; pass 4 undated
+    dates.write_text("recording,started\n"
+                     f"{paths[0].name},2026-03-01T09:00:00+01:00\n"
+                     f"{paths[1]},2026-01-10T08:00:00Z\n"
+                     f"{paths[2].stem},1770000000\n")
+    assert main(["scan", "--model", str(folder / "model"), "--recordings",
+                 *map(str, paths), "--out", str(out), "--dates", str(dates)]) == 0
+    assert "(4 scanned before)" in capsys.readouterr().err
+    started = [json.loads((out / f"{p.stem}.scan.json").read_text())["started"] for p in paths]
+    assert started == ["2026-03-01T08:00:00Z", "2026-01-10T08:00:00Z", "2026-02-02T02:40:00Z",
+                       None]
+    passes = tf.read_scan(out)
+    from railwatch.trackmap.maps import by_date
+
+    ordered, left = by_date(passes)
+    assert [p.name for p in ordered] == [paths[i].stem for i in (1, 2, 0, 3)] and not left
+    kept, left = by_date(passes, since="2026-02-01", until="2026-03-01")
+    assert [p.name for p in kept] == [paths[i].stem for i in (2, 0)]
+    assert sorted(p.name for p in left) == sorted(paths[i].stem for i in (1, 3))
+    assert main(["track-map", "--events", str(out), "--out", str(tmp_path / "m.csv"),
+                 "--until", "2026-02-28"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("2 passes (recorded 2026-01-10 to 2026-02-02; 2 left out by "
+                          "--since/--until (undated or outside))"), err
+    assert main(["track-map", "--events", str(out), "--out", str(tmp_path / "m.csv")]) == 0
+    assert "4 passes (recorded 2026-01-10 to 2026-03-01; 1 undated" in capsys.readouterr().err
+    for bad, said in ((["--since", "2026-02-30"], "--since 2026-02-30: give a date"),
+                      (["--since", "2026-03-01", "--until", "2026-01-01"], "is before --since"),
+                      (["--since", "2027-01-01"], "no pass of")):
+        assert main(["track-map", "--events", str(out), "--out", str(tmp_path / "m.csv"),
+                     *bad]) != 0
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and said in err, err
+    dates.write_text("recording,started\npass01,yesterday\n")
+    assert main(["-q", "scan", "--model", str(folder / "model"), "--recordings", str(paths[0]),
+                 "--out", str(out), "--dates", str(dates)]) != 0
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "line 2: 'yesterday' is not a date-time" in err, err

@@ -43,7 +43,12 @@ channel from the window it is most central in, and its position: what track-map 
 passes) and NAME.scan.json (what was scanned, the stretch of track covered); and events.csv,
 every event with its recording. A recording scanned before by the same model (same file, same
 threshold) is not scanned again: kill a scan and start it again, and it goes on where it
-stopped.""")
+stopped.
+\b
+Dates: a recording is dated by the layout's timestamp column (its first sample: a date-time,
+or seconds since 1970-01-01 UTC) or by --dates, a CSV with the columns recording (file name)
+and started (ISO 8601, e.g. 2026-03-01T08:15:00Z), which wins. track-map orders the passes by
+date and selects them with --since and --until; a recording without a date is still scanned.""")
 @click.option("--model", type=click.Path(path_type=Path), required=True,
               help="Model folder written by 'railwatch train --recordings' (or its .onnx).")
 @click.option("--recordings", "recordings", multiple=True, required=True, metavar="PATH...",
@@ -60,9 +65,12 @@ stopped.""")
               show_default=True, help="Scan in this process, or each recording as a Ray task.")
 @click.option("--address", help="Ray cluster address (with --executor ray); default: start a "
                                  "local Ray on this machine.")
+@click.option("--dates", "dates_file", type=click.Path(path_type=Path),
+              help="When each recording began (CSV: recording, started), if the recordings "
+                   "carry no timestamp column (below).")
 def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, ...], out: Path,
          layout_file: Path | None, threshold: float | None, executor: str,
-         address: str | None) -> None:
+         address: str | None, dates_file: Path | None) -> None:
     """Scan many recordings for defects with one model: events per recording and combined.
 
     \b
@@ -72,12 +80,14 @@ def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, .
     """
     from railwatch.progress import Progress
     from railwatch.recordings.layout import load_layout
+    from railwatch.trackmap.scan import read_dates
     from railwatch.trackmap.scan import scan as scan_recordings
 
     if address and executor != "ray":
         raise RailwatchError("--address goes with --executor ray")
     paths = expand_recordings(recordings + more_recordings)
     layout = load_layout(layout_file) if layout_file else None
+    dates = read_dates(dates_file) if dates_file else None
     ctx = click.get_current_context()
     bar = Progress(len(paths), "scan", "recordings", every_s=0.0,
                    enabled=(ctx.find_root().obj or {}).get("progress", True))
@@ -89,7 +99,8 @@ def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, .
 
     with bar:
         summary = scan_recordings(model, paths, out, layout=layout, threshold=threshold,
-                                  executor=executor, address=address, on_recording=done)
+                                  executor=executor, address=address, on_recording=done,
+                                  dates=dates)
     rate = summary.recording_s / 3600 / max(summary.wall_s / 3600, 1e-9)
     info(f"{len(paths)} recordings ({summary.reused} scanned before), {summary.events} events; "
          f"{summary.wall_s:.1f} s" + (f", {rate:.0f} recording-hours per hour"
@@ -107,8 +118,9 @@ neighbourhood, is in the top 1 % of the pass), passes_with_event, passes_covered
 confidence (95 % lower bound of the share), median_score, channel (the rail, named by the
 channel over it on a pass up the map; with --sides group the channel most passes had highest
 there), group, kind_guess (spike-like or deviation-like, from the events' duration),
-first_seen, last_seen (recording names), asset, asset_kind (with --assets: the asset the place
-lies on, or "unexplained": a candidate defect).
+first_seen, last_seen (recording names; the passes in the order they were recorded where scan
+dated them), asset, asset_kind (with --assets: the asset the place lies on, or "unexplained":
+a candidate defect).
 \b
 --assets ASSETS.csv: the asset register, one row per asset: kind (switch, crossing, insulated
 joint, weld, bridge transition, level crossing or your own), position_m (and length_m) or
@@ -157,6 +169,9 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
               show_default=True,
               help="A place lies on an asset within this distance of its stretch (the map's "
                    "positions carry the passes' common odometry error: 1-3 m).")
+@click.option("--since", help="Map only the passes recorded on or after this date (ISO 8601: "
+                             "2026-03-01, or 2026-03-01T08:15); undated passes are left out.")
+@click.option("--until", help="... and on or before this date (a date alone: to its end).")
 @click.option("--truth", type=click.Path(path_type=Path),
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
@@ -164,7 +179,7 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
 def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
               tolerance_m: float, max_offset_m: float, sides: str, min_events: str,
               min_share: float, assets_file: Path | None, asset_tolerance_m: float,
-              truth: Path | None) -> None:
+              since: str | None, until: str | None, truth: Path | None) -> None:
     """Turn repeated passes over one line into ranked places on the track.
 
     \b
@@ -186,7 +201,11 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     writable_file(out)
     if plot is not None:
         writable_file(plot)
-    passes = tm.read_scan(events_dir)
+    passes, left = tm.maps.by_date(tm.read_scan(events_dir), since, until)
+    if not passes:
+        raise RailwatchError(f"no pass of {events_dir} was recorded between --since and --until "
+                             f"({len(left)} left out, "
+                             f"{sum(not p.started for p in left)} of them undated)")
     truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
     register = tm.assets.read_assets(assets_file) if assets_file else None
     assets_out = out.with_name(out.stem + ".assets.csv")
@@ -209,8 +228,10 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
         from railwatch.report.figures import save_figure, track_map_figure
 
         save_figure(track_map_figure(made.places, passes, made.reported, truth_m, made.fused,
-                                     made.level), plot)
-    line = (f"{len(passes)} passes, {sum(len(p.position) for p in passes)} events -> "
+                                     made.level, labelled.on_line if labelled else ()), plot)
+    dated = tm.maps.dates_said(passes, left)
+    line = (f"{len(passes)} passes{f' ({dated})' if dated else ''}, "
+            f"{sum(len(p.position) for p in passes)} events -> "
             f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
     if labelled is not None:
         line += "; " + tm.assets.summary(labelled, made.reported, register)

@@ -6,6 +6,8 @@ A small TOML or YAML file (``--layout``), for example::
     time = "t"                  # optional: time column (s); checked for gaps and rate
     speed = "speed"             # optional: train speed (m/s), integrated to a track position
     position = "pos"            # optional: track position (m); preferred over speed
+    timestamp = "utc"           # optional: when each sample was taken (date-time, or seconds
+                                # since 1970-01-01 UTC): dates the recording for the map
     scale = "field"             # optional: "field" (a real rail, the default) or "benchmark"
 
     [channels]                  # accelerometer columns, in the order the model sees them,
@@ -35,7 +37,7 @@ from typing import Any
 from railwatch.errors import RailwatchError
 from railwatch.mapping_files import read_mapping
 
-KEYS = ("fs", "channels", "time", "speed", "position", "scale")
+KEYS = ("fs", "channels", "time", "speed", "position", "timestamp", "scale")
 SCALES = ("field", "benchmark")
 
 
@@ -50,6 +52,7 @@ class Layout:
     speed: str | None = None
     position: str | None = None
     scale: str = "field"
+    timestamp: str | None = None  # read once, for the recording's start (recording_start)
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -62,6 +65,8 @@ class Layout:
         d["channels"], d["groups"] = list(self.channels), list(self.groups)
         if self.scale == "field":  # the default: model files written before it stay the same
             del d["scale"]
+        if self.timestamp is None:  # the same
+            del d["timestamp"]
         return d
 
     def select(self, groups: tuple[str, ...]) -> Layout:
@@ -109,11 +114,12 @@ def parse_layout(values: Any, source: str = "layout") -> Layout:
                              "(a list of names, or a table name = group)")
     if len(set(channels)) != len(channels):
         raise RailwatchError(f"{source}: a channel is named twice")
-    named = {k: (str(values[k]) if values.get(k) else None) for k in ("time", "speed", "position")}
+    named = {k: (str(values[k]) if values.get(k) else None)
+             for k in ("time", "speed", "position", "timestamp")}
     clash = [v for v in named.values() if v in channels]
     if clash:
         raise RailwatchError(f"{source}: column {clash[0]!r} is both a channel and time/speed/"
-                             "position")
+                             "position/timestamp")
     scale = str(values.get("scale", "field"))
     if scale not in SCALES:
         raise RailwatchError(f"{source}: scale is {scale!r}: use \"field\" (a real rail) or "
@@ -129,7 +135,7 @@ def load_layout(path: str | os.PathLike[str]) -> Layout:
 def layout_toml(layout: Layout) -> str:
     """The layout as a TOML file (what :func:`load_layout` reads back)."""
     lines = [f"fs = {layout.fs!r}"]
-    for key in ("time", "speed", "position"):
+    for key in ("time", "speed", "position", "timestamp"):
         value = getattr(layout, key)
         if value:
             lines.append(f"{key} = {json.dumps(value)}")

@@ -19,7 +19,7 @@ import struct
 import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -613,3 +613,61 @@ def write_recording(path: str | os.PathLike[str], columns: dict[str, NDArray[Any
 
             scipy.io.savemat(tmp, {k: np.asarray(v).reshape(-1, 1) for k, v in columns.items()})
     return path
+
+
+def recording_start(path: str | os.PathLike[str], layout: Layout) -> str | None:
+    """When a recording began: its first sample's ``timestamp`` (the layout's column; None
+    without one) as ISO 8601 to the second. A number is seconds since 1970-01-01 UTC; a
+    date-time with a zone is converted to UTC (the result then ends in ``Z``), one without a
+    zone is taken as it is."""
+    if not layout.timestamp:
+        return None
+    path, column = Path(path), layout.timestamp
+    value: Any = None
+    try:
+        if FORMATS.get(path.suffix.lower()) == "csv":
+            import pandas as pd
+
+            value = pd.read_csv(path, usecols=[column], nrows=1)[column].iloc[0]
+        elif FORMATS.get(path.suffix.lower()) == "parquet":
+            import pyarrow.parquet as pq
+
+            with pq.ParquetFile(path) as f:
+                table = f.read_row_group(0, columns=[column])
+                value = table.column(0)[0].as_py() if table.num_rows else None
+        else:  # HDF5 and MATLAB hold numbers: seconds since 1970
+            rec = Recording(path, replace(layout, time=column, speed=None, position=None))
+            first = next(rec.chunks(rows=1)).time
+            value = float(first[0]) if first is not None else None
+    except RailwatchError:
+        raise
+    except (KeyError, ValueError, OSError, IndexError, StopIteration) as e:
+        raise RailwatchError(f"{path.name}: cannot read its timestamp column {column!r} "
+                             f"({_reason(e)})") from None
+    return iso_time(value, f"{path.name}: timestamp column {column!r}")
+
+
+def iso_time(value: Any, what: str) -> str:
+    """A date-time (or seconds since 1970-01-01 UTC) as ISO 8601 to the second (module's
+    :func:`recording_start`)."""
+    import datetime
+
+    import pandas as pd
+
+    try:
+        if isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+                value, bool):
+            if not np.isfinite(value):
+                raise ValueError(value)
+            stamp = pd.Timestamp(float(value), unit="s", tz="UTC")
+        else:
+            stamp = pd.Timestamp(value)
+    except (ValueError, TypeError, OverflowError):
+        raise RailwatchError(f"{what}: {value!r} is not a date-time (ISO 8601, e.g. "
+                             "2026-03-01T08:15:00Z) nor seconds since 1970-01-01 UTC") from None
+    if pd.isna(stamp):
+        raise RailwatchError(f"{what}: the first sample has no time")
+    if stamp.tzinfo is not None:
+        utc = stamp.tz_convert(datetime.timezone.utc).tz_localize(None)
+        return utc.isoformat(timespec="seconds") + "Z"
+    return stamp.isoformat(timespec="seconds")

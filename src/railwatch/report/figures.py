@@ -272,11 +272,13 @@ def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = ""
 
 def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: Sequence[Any],
                      truth_m: NDArray[Any] | None = None, fused: Any = None,
-                     level: float | None = None) -> Figure:
+                     level: float | None = None, assets: Sequence[Any] = ()) -> Figure:
     """The track with its places: with ``fused`` (a fused map) the evidence along the track
     and the reporting ``level``, reported places as red dots; otherwise each place's share of
-    the passes that covered it as a bar, reported ones red. True defects, where known, as
-    green ticks; the stretch each pass covered below."""
+    the passes that covered it as a bar, reported ones red. With a register (``assets`` on the
+    line, and places labelled by them), a reported place on an asset is grey and the assets
+    are grey ticks. True defects, where known, as green ticks; the stretch each pass covered
+    below."""
     fig = Figure(figsize=(13, 4.2), layout="constrained")
     ax, cov = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
     shown = {id(loc) for loc in reported}
@@ -286,8 +288,14 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
         if level is not None:
             ax.axhline(level, color="tab:red", lw=0.8, ls="--", label="reporting level")
         rep = [loc for loc in locations if id(loc) in shown]
-        ax.plot([loc.position_m / 1000 for loc in rep], [loc.evidence for loc in rep], "o",
-                mfc="none", color="tab:red", ms=6, label="reported place")
+        on = [loc for loc in rep if getattr(loc, "asset", "") not in ("", "unexplained")]
+        rest = [loc for loc in rep if loc not in on]
+        ax.plot([loc.position_m / 1000 for loc in rest], [loc.evidence for loc in rest], "o",
+                mfc="none", color="tab:red", ms=6,
+                label="reported place, unexplained" if assets else "reported place")
+        if on:
+            ax.plot([loc.position_m / 1000 for loc in on], [loc.evidence for loc in on], "o",
+                    mfc="none", color="0.45", ms=6, label="reported place on an asset")
         ax.set_ylabel("evidence (−log10 p)")
         bottom = -0.04 * max(float(np.nanmax(fused.evidence, initial=1.0)), 1.0)
     else:
@@ -301,10 +309,16 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
         starts = np.asarray(truth_m, dtype=float).reshape(len(truth_m), -1)[:, 0]
         ax.plot(starts / 1000, np.full(len(starts), bottom), "^",
                 color="tab:green", ms=5, label="true defect")
-    if fused is not None or (truth_m is not None and len(truth_m)):
+    if len(assets):
+        ax.plot([0.5 * (a.start_m + a.end_m) / 1000 for a in assets],
+                np.full(len(assets), 2 * bottom), "v", color="0.45", ms=5,
+                label="asset (register)")
+    if fused is not None or (truth_m is not None and len(truth_m)) or len(assets):
         ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)  # beside the track
-    ax.set_title(f"{len(reported)} reported places (red) of {len(locations)} listed, "
-                 f"{len(passes)} passes")
+    unexplained = sum(getattr(loc, "asset", "") == "unexplained" for loc in reported)
+    ax.set_title(f"{len(reported)} reported places "
+                 + (f"({unexplained} unexplained, red; on assets grey)" if len(assets)
+                    else "(red)") + f" of {len(locations)} listed, {len(passes)} passes")
     ax.grid(alpha=0.3)
     for i, p in enumerate(passes):
         cov.plot(np.array(p.covered) / 1000, [i, i], lw=3, color="tab:blue")

@@ -46,7 +46,7 @@ PROFILE_ARRAYS = ("time_s", "position_m", "channel_score", "channels", "groups")
 #: track it covered (recorded positions of its first and last sample).
 SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
              "position_last_m", "profile", "wheel_turns_m", "scale", "model", "model_path",
-             "signature", "threshold_given", "scanned")
+             "signature", "threshold_given", "scanned", "started")
 
 
 @dataclass
@@ -97,6 +97,7 @@ class PassEvents:
     profile: ScoreProfile | None = None  # every sample's scores (None: a scan without them)
     start: float | None = None  # recorded position of the recording's first sample, m
     scale: str = ""  # the scale of the model that scanned it ("" : a scan before the key)
+    started: str | None = None  # when the recording began (ISO 8601; None: undated)
 
 
 @dataclass(frozen=True)
@@ -168,7 +169,7 @@ def _read_pass(info_path: Path) -> PassEvents:
     return PassEvents(name=name, position=position, score=score, duration_s=duration,
                       channel=[r["channel"] for r in rows], group=[r["group"] for r in rows],
                       covered=(min(lo, hi), max(lo, hi)), start=float(lo),
-                      scale=str(info.get("scale", "")),
+                      scale=str(info.get("scale", "")), started=info.get("started"),
                       profile=_read_profile(info_path.with_name(name + PROFILE_SUFFIX))
                       if info.get("profile") == PROFILE_KIND else None)
 

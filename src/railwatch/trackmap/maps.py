@@ -329,3 +329,53 @@ def make_map(passes: list[PassEvents], method: str = "fused", tolerance_m: float
             + f"; sides: {fused.sides}" + (" (auto)" if sides == "auto" else ""))
     return TrackMap(places, reported_fused(places, false_per_km), rule, fused,
                     fused.level(false_per_km))
+
+
+def by_date(passes: list[PassEvents], since: str | None = None, until: str | None = None,
+            ) -> tuple[list[PassEvents], list[PassEvents]]:
+    """The passes in the order they were recorded (dated ones by date, then the undated by
+    name), and, with ``since`` or ``until`` (ISO 8601 dates or date-times; a date alone runs to
+    the end of its day), only the dated passes between them; second, the passes left out."""
+    import pandas as pd
+
+    def when(text: str, what: str, end: bool = False) -> pd.Timestamp:
+        try:
+            stamp = pd.Timestamp(text.rstrip("Zz"))
+        except ValueError:
+            raise RailwatchError(f"{what} {text}: give a date (2026-03-01) or a date-time "
+                                 "(2026-03-01T08:15)") from None
+        if stamp.tzinfo is not None:  # as scan writes it: UTC, the zone dropped
+            stamp = stamp.tz_convert("UTC").tz_localize(None)
+        day_only = len(text.strip()) <= 10
+        return stamp + pd.Timedelta(days=1) - pd.Timedelta(seconds=1) if end and day_only \
+            else stamp
+
+    ordered = sorted(passes, key=lambda p: (p.started is None, p.started or "", p.name))
+    if since is None and until is None:
+        return ordered, []
+    lo = when(since, "--since") if since else None
+    hi = when(until, "--until", end=True) if until else None
+    if lo is not None and hi is not None and hi < lo:
+        raise RailwatchError(f"--until {until} is before --since {since}")
+    kept, left = [], []
+    for p in ordered:
+        at = pd.Timestamp(p.started.rstrip("Zz")) if p.started else None
+        inside = at is not None and (lo is None or at >= lo) and (hi is None or at <= hi)
+        (kept if inside else left).append(p)
+    return kept, left
+
+
+def dates_said(passes: list[PassEvents], left: list[PassEvents]) -> str:
+    """What the map's closing line says of the passes' dates."""
+    dated = [p.started for p in passes if p.started]
+    undated = [p.name for p in passes if not p.started]
+    parts = []
+    if dated:
+        parts.append(f"recorded {dated[0][:10]} to {dated[-1][:10]}")
+    if undated and dated:
+        parts.append(f"{len(undated)} undated ({', '.join(undated[:3])}"
+                     f"{' ...' if len(undated) > 3 else ''})")
+    if left:
+        parts.append(f"{len(left)} left out by --since/--until"
+                     + (" (undated or outside)" if any(not p.started for p in left) else ""))
+    return "; ".join(parts)

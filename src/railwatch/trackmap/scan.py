@@ -4,9 +4,10 @@ process or as Ray tasks, resumable (a recording scanned by the same model is not
 For every recording ``NAME.EXT`` the scan folder gets ``NAME.events.csv`` (the events of
 ``railwatch detect``), ``NAME.profile.npz`` (every per-sample score with its position: what the
 track map fuses across passes) and then ``NAME.scan.json`` (the recording, the model, the
-stretch of track it covered, when): written last, it marks the recording done. ``events.csv``
-combines them all with a ``recording`` column. Only the driver writes; a Ray task reads its
-recording and returns its events and profile.
+stretch of track it covered, when it was scanned and when it was recorded: ``started``, from
+the layout's ``timestamp`` column or a ``--dates`` table): written last, it marks the recording
+done. ``events.csv`` combines them all with a ``recording`` column. Only the driver writes; a
+Ray task reads its recording and returns its events and profile.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from railwatch.detection import pipeline
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.readers import Recording
+from railwatch.recordings.readers import Recording, iso_time, recording_start
 from railwatch.trackmap.folder import (
     COMBINED,
     EVENTS_SUFFIX,
@@ -68,14 +69,17 @@ def _signature(path: Path) -> dict[str, int]:
 def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[str]],
          out: str | os.PathLike[str], layout: Layout | None = None,
          threshold: float | None = None, executor: str = "local", address: str | None = None,
-         on_recording: Callable[[str, int | None], None] | None = None) -> ScanSummary:
+         on_recording: Callable[[str, int | None], None] | None = None,
+         dates: dict[str, str] | None = None) -> ScanSummary:
     """Scan every recording into ``out`` (module docstring); returns what was done.
 
     Everything is checked before any scan: the model, every recording's format and columns
     against the layout (the model's unless ``layout`` is given), names that would collide.
     ``on_recording(name, n_events)`` is called as each finishes (``None``: found finished).
+    ``dates`` (recording name -> ISO 8601, :func:`read_dates`) dates recordings, before the
+    layout's ``timestamp`` column; a recording scanned before takes a new date without a scan.
     """
-    started = time.perf_counter()
+    began = time.perf_counter()
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise RailwatchError(f"--out {out} is a file: give a folder for the scan")
@@ -94,12 +98,16 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
                              f"trained on {rm.detector.n_channels_}")
     for p in paths:  # every file's format and columns, before any work
         Recording(p, layout)
+    dates = dates or {}
+    started = {p.stem: dates.get(p.stem) or recording_start(p, layout) for p in paths}
     out.mkdir(parents=True, exist_ok=True)
     ident = model_id(model)
     todo = [p for p in paths if not _done(out, p, ident, threshold)]
     for p in paths:
-        if p not in todo and on_recording is not None:
-            on_recording(p.stem, None)
+        if p not in todo:
+            _redate(out / f"{p.stem}{SCAN_SUFFIX}", started[p.stem])
+            if on_recording is not None:
+                on_recording(p.stem, None)
     args = (str(model), layout.to_dict(), threshold)
     if executor == "local":
         results = ((p, _scan_one(p, *args, detector=rm)) for p in todo)
@@ -116,14 +124,50 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
         atomic_savez(out / f"{name}{PROFILE_SUFFIX}", profile)
         info = scan_record(**info, model=ident, model_path=str(model),
                            signature=_signature(path), threshold_given=threshold,
-                           scanned=datetime.datetime.now().isoformat(timespec="seconds"))
+                           scanned=datetime.datetime.now().isoformat(timespec="seconds"),
+                           started=started[name])
         with atomic_path(out / f"{name}{SCAN_SUFFIX}") as tmp:  # last: marks it done
             tmp.write_text(json.dumps(info, indent=1))
         if on_recording is not None:
             on_recording(name, int(info["events"]))
     n_events, seconds = _combine(out, [p.stem for p in paths])
     return ScanSummary(scanned=len(todo), reused=len(paths) - len(todo), events=n_events,
-                       recording_s=seconds, wall_s=time.perf_counter() - started)
+                       recording_s=seconds, wall_s=time.perf_counter() - began)
+
+
+def _redate(info_path: Path, started: str | None) -> None:
+    """A finished recording's date, changed in place when it is given anew."""
+    info = json.loads(info_path.read_text())
+    if started is not None and info.get("started") != started:
+        info["started"] = started
+        with atomic_path(info_path) as tmp:
+            tmp.write_text(json.dumps(scan_record(**info), indent=1))
+
+
+def read_dates(path: str | os.PathLike[str]) -> dict[str, str]:
+    """A dates table (``scan --dates``): columns ``recording`` (a file's name, with or without
+    its folder and extension) and ``started`` (ISO 8601, or seconds since 1970-01-01 UTC);
+    recording name -> ISO 8601."""
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            if not {"recording", "started"} <= set(reader.fieldnames or []):
+                raise RailwatchError(f"--dates {path}: a dates table has the columns recording "
+                                     "and started (ISO 8601, e.g. 2026-03-01T08:15:00Z)")
+            rows = list(reader)
+    except OSError as e:
+        raise RailwatchError(f"--dates {path}: cannot read it ({e.strerror or e})") from None
+    out = {}
+    for n, row in enumerate(rows, start=2):
+        text = (row["started"] or "").strip()
+        try:
+            value: Any = float(text)
+        except ValueError:
+            value = text
+        out[Path((row["recording"] or "").strip()).stem] = iso_time(
+            value, f"--dates {path}, line {n}")
+    return out
 
 
 def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
@@ -149,7 +193,7 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
     rm = detector or pipeline.load_recording_model(model)
     lay = Layout.from_dict(layout, "the scan's layout")
     rec = Recording(path, lay)
-    started = time.perf_counter()
+    began = time.perf_counter()
     profile = pipeline.Profile()
     result = pipeline.detect(rm.detector, rec, rm.preparation,
                              rm.threshold if threshold is None else threshold, profile=profile)
@@ -157,7 +201,7 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
     finite = position[np.isfinite(position)]
     info = scan_record(
         recording=str(path), duration_s=rec.duration_s, events=len(result.events),
-        threshold=result.threshold, detect_s=time.perf_counter() - started,
+        threshold=result.threshold, detect_s=time.perf_counter() - began,
         position_first_m=float(finite[0]) if len(finite) else None,
         position_last_m=float(finite[-1]) if len(finite) else None,
         profile=PROFILE_KIND, wheel_turns_m=result.wheel_turns,
