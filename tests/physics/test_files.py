@@ -78,6 +78,9 @@ def test_simulate_is_reproducible(tmp_path: Path) -> None:
     (["--fs", "50"], "--fs 50 Hz"),
     (["--irregularity", "bumpy"], "irregularity 'bumpy'"),
     (["--track-km", "0.1"], "--track-km"),
+    (["--start", "soon"], "--start soon: give a date-time"),
+    (["--every-days", "0"], "--every-days 0: give a positive number"),
+    (["--growing", "2"], "--growing"),
 ])
 def test_impossible_settings_are_one_line_errors(tmp_path: Path, capsys, args,  # type: ignore[no-untyped-def]
                                                  message) -> None:
@@ -136,3 +139,36 @@ def test_an_impossible_event_rate_is_a_one_line_error(tmp_path: Path, capsys, ra
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
     assert not (tmp_path / "m").exists()
+
+
+def test_dated_passes_over_growing_squats(tmp_path: Path) -> None:
+    """--start dates every pass (a utc column the layout names); --growing deepens the chosen
+    squats linearly in time, the others and the clean twins unchanged."""
+    from railwatch.recordings.readers import recording_start
+
+    out = tmp_path / "w"
+    assert main(["-q", "simulate", "--out", str(out), "--passes", "3", "--track-km", "1.2",
+                 "--seed", "8", "--start", "2026-01-05T06:00Z", "--every-days", "14",
+                 "--growing", "0.5"]) == 0
+    layout = load_layout(out / "layout.toml")
+    assert layout.timestamp == "utc"
+    assert [recording_start(out / f"pass0{i}.parquet", layout) for i in (1, 2, 3)] == [
+        "2026-01-05T06:00:00Z", "2026-01-19T06:00:00Z", "2026-02-02T06:00:00Z"]
+    with open(out / "track.defects.csv", newline="") as fh:
+        squats = {r["defect"]: r for r in csv.DictReader(fh) if r["kind"] == "squat"}
+    growth = {d: float(r["detail"].split("growth=")[1]) for d, r in squats.items()
+              if "growth=" in r["detail"]}
+    assert len(growth) == round(0.5 * len(squats)) > 0
+    assert all(1.2 <= g <= 3.0 for g in growth.values())
+    seen = 0
+    for i in (1, 2, 3):
+        with open(out / f"pass0{i}.defects.csv", newline="") as fh:
+            for r in csv.DictReader(fh):
+                if r["kind"] != "squat":
+                    continue
+                first = float(squats[r["defect"]]["depth_mm"])
+                g = growth.get(r["defect"], 1.0)
+                assert float(r["depth_mm"]) == pytest.approx(
+                    first * (1 + (g - 1) * (i - 1) / 2), rel=1e-3)
+                seen += r["defect"] in growth and i > 1
+    assert seen > 0

@@ -15,7 +15,7 @@ from railwatch.physics.irregularity import german_vertical, profile, roughness
 from railwatch.physics.passes import PassPlan, simulate_pass
 from railwatch.physics.track import TrackModel, static_profile
 from railwatch.physics.vehicle import CHANNELS, Vehicle
-from railwatch.physics.world import Sensors, World, build_track
+from railwatch.physics.world import Sensors, World, build_track, grown
 
 #: A smooth, uniform track: only the items given make the wheel move.
 SMOOTH = World(length_m=400.0, irregularity=None, roughness=None, support_spread=0.0,
@@ -186,3 +186,22 @@ def test_items_keep_their_distance_and_sizes() -> None:
     assert all(0.02 <= s.length_m <= 0.10 for s in squats)
     assert {d.kind for d in defects} == {"squat", "joint", "weld", "step", "corrugation"}
     assert {f.kind for f in features} == {"switch", "crossing", "transition", "level-crossing"}
+
+
+def test_a_grown_defect_changes_the_wheel_path_near_it_only() -> None:
+    """grown() rebuilds the wheel path around a changed defect from the rails before any item:
+    unchanged, it gives the track's own path; deeper, a deeper path there and nothing else."""
+    world = World(length_m=300.0)
+    track = build_track(world, seed=2, items=([squat(0.5), Item(1, "weld", 200.2, 0.8, 0.3,
+                                                                 1, (("crown_mm", 0.1),
+                                                                     ("crown_m", 0.05)))],
+                                              []))
+    same = grown(track, track.defects)
+    assert np.abs(same.path - track.path).max() < 1e-12
+    deeper = grown(track, [replace(track.defects[0], depth_mm=1.0)])
+    assert deeper.defects[0].depth_mm == 1.0 and deeper.clean is track.clean
+    changed = np.flatnonzero(np.abs(deeper.path - track.path).max(axis=0) > 1e-9)
+    at = track.x0 + 0.001 * changed
+    assert at.min() > 199.7 and at.max() < 200.4
+    i = int(round((200.03 - track.x0) / 0.001))
+    assert deeper.path[0, i] < track.path[0, i] - 1e-4  # the rail 1 dips deeper

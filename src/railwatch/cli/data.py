@@ -231,6 +231,15 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
               help="Positions GNSS-aided: each pass 1 m off at its start (--odometry-offset), "
                    "0.01 % scale error, a walk of 0.1 m per square root of km, no error common "
                    "to the passes (the other odometry options do not apply).")
+@click.option("--start", help="Date the passes: the first starts then (ISO 8601, e.g. "
+                             "2026-01-05T06:00:00Z; no zone: UTC), each in a 'utc' column (s "
+                             "since 1970) named by the layout's timestamp key.")
+@click.option("--every-days", type=float, default=7.0, show_default=True,
+              help="Days from one pass to the next (with --start).")
+@click.option("--growing", type=click.FloatRange(0, 1), default=0.0, show_default=True,
+              help="Share of the squats that grow: each deepens linearly in time to 1.2-3.0 "
+                   "times its first depth at the last pass (passNN.defects.csv: each pass's "
+                   "depth; track.defects.csv: growth=).")
 @odometry_options("")
 @click.option("--odometry-common-offset", type=click.FloatRange(min=0), default=2.0,
               show_default=True, help="Std (m) of an offset every pass shares (the reference "
@@ -243,7 +252,8 @@ def simulate(obj: dict, out: Path, passes: int, track_km: float, seed: int, fs: 
              speed_text: str, irregularity: str, roughness: str, flat_mm: float, fmt: str,
              gnss: bool, odometry_offset: float, odometry_drift: float, odometry_walk: float,
              odometry_relative: bool, push_pull: bool, odometry_common_offset: float,
-             odometry_common_drift: float) -> None:
+             odometry_common_drift: float, start: str | None, every_days: float,
+             growing: float) -> None:
     """Simulate a coach running over a track with real rail defects: field-rate recordings from
     a vehicle-track dynamics model, each with its clean twin.
 
@@ -268,13 +278,17 @@ def simulate(obj: dict, out: Path, passes: int, track_km: float, seed: int, fs: 
     passNN.defects.csv and passNN.features.csv (when each pass crossed each item),
     twins/passNN.<format> (the same pass without its defects, sensor noise and odometry
     error),
-    track.defects.csv, track.features.csv and physics.json (every setting).
+    track.defects.csv, track.features.csv, track.assets.csv (the features as an asset
+    register for track-map --assets) and physics.json (every setting).
+    --start dates the passes (a utc column, --every-days apart); --growing deepens a share
+    of the squats from pass to pass (weeks to months of growth, for maps over time).
     A 5-km pass takes 10-20 s on 2 cores.
     Examples:
       railwatch simulate --out physics/
       railwatch simulate --out slow/ --passes 10 --speed 8-15 --gnss
+      railwatch simulate --out weekly/ --passes 10 --start 2026-01-05T06:00Z --growing 0.5
     """
-    from railwatch.physics.files import Positioning, write_world
+    from railwatch.physics.files import Positioning, Schedule, write_world
     from railwatch.physics.passes import PassPlan
     from railwatch.physics.world import World
     from railwatch.progress import Progress
@@ -295,13 +309,15 @@ def simulate(obj: dict, out: Path, passes: int, track_km: float, seed: int, fs: 
     positioning = Positioning(Odometry(odometry_offset, 0.0001, 0.1), 0.0, 0.0) if gnss else \
         Positioning(Odometry(odometry_offset, odometry_drift, odometry_walk, odometry_relative),
                     odometry_common_offset, odometry_common_drift)
+    schedule = Schedule(start, every_days, growing)
     world.check()
     plan.check()
+    schedule.check()
     started = time.perf_counter()
     with Progress(passes, "passes", "passes", enabled=obj["progress"], every_s=0.0) as bar:
         track, paths = write_world(
             out, passes, world, seed=seed, plan=plan, positioning=positioning,
-            suffix=f".{fmt}", progress=bar.update)
+            suffix=f".{fmt}", progress=bar.update, schedule=schedule)
     kinds = ", ".join(f"{sum(d.kind == k for d in track.defects)} {k}s"
                       for k in sorted({d.kind for d in track.defects}))
     info(f"wrote {passes} passes over {track_km:g} km ({kinds}; {len(track.features)} features) "

@@ -30,7 +30,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +43,7 @@ from railwatch.physics.dynamics import coupled
 from railwatch.physics.features import ITEM_FIELDS
 from railwatch.physics.passes import PassPlan, PhysicsPass, oversampling, simulate_pass
 from railwatch.physics.vehicle import CHANNELS, GROUPS
-from railwatch.physics.world import PhysicsTrack, World, build_track
+from railwatch.physics.world import PhysicsTrack, World, build_track, grown
 from railwatch.recordings.layout import Layout, layout_toml, load_layout
 from railwatch.recordings.readers import FORMATS, Recording, write_recording
 from railwatch.synthetic.track import Odometry, recorded_position
@@ -88,16 +88,72 @@ CROSSING_FIELDS = ("defect", "kind", "time_s", "duration_s", "center_s", "positi
                    "recorded_m", "length_m", "depth_mm", "rail", "channel", "speed_ms")
 
 
-def layout(fs: float) -> Layout:
-    """The layout of a physics pass written at ``fs`` Hz."""
+def layout(fs: float, dated: bool = False) -> Layout:
+    """The layout of a physics pass written at ``fs`` Hz (``dated``: with its ``utc`` column,
+    seconds since 1970-01-01 UTC)."""
     return Layout(fs=fs, channels=CHANNELS, groups=GROUPS, time="time", speed="speed",
-                  position="position")
+                  position="position", timestamp="utc" if dated else None)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """When the passes run and how the track changes between them: pass ``i`` (from 0) starts
+    ``start`` + ``i`` · ``every_days`` (None: undated passes); a share ``growing`` of the squats
+    grows, each to a depth ``g`` times its first one at the last pass, ``g`` drawn uniformly
+    from ``growth``, linearly in time between (docs/physics.md, "Dated passes and growing
+    squats")."""
+
+    start: str | None = None
+    every_days: float = 7.0
+    growing: float = 0.0
+    growth: tuple[float, float] = (1.2, 3.0)
+
+    def check(self) -> None:
+        if not 0.0 <= self.growing <= 1.0:
+            raise RailwatchError(f"--growing {self.growing:g}: give a share of the squats, 0-1")
+        if not self.every_days > 0:
+            raise RailwatchError(f"--every-days {self.every_days:g}: give a positive number "
+                                 "of days between passes")
+        if self.start is not None:
+            self.start_s()
+
+    def start_s(self) -> float:
+        """The first pass's start, seconds since 1970-01-01 UTC."""
+        import pandas as pd
+
+        try:
+            stamp = pd.Timestamp(str(self.start))
+        except ValueError:
+            raise RailwatchError(f"--start {self.start}: give a date-time, e.g. "
+                                 "2026-01-05T06:00:00Z") from None
+        if stamp.tzinfo is None:
+            stamp = stamp.tz_localize("UTC")
+        return float(stamp.timestamp())
+
+    def growth_of(self, track: PhysicsTrack, seed: int) -> dict[int, float]:
+        """Defect index -> its depth at the last pass over its first, for the growing
+        squats."""
+        squats = [d.index for d in track.defects if d.kind == "squat"]
+        rng = np.random.default_rng([seed, 310])
+        chosen = sorted(rng.choice(squats, size=int(round(self.growing * len(squats))),
+                                   replace=False).tolist()) if squats else []
+        return {i: float(rng.uniform(*self.growth)) for i in chosen}
+
+
+def _grown_for(track: PhysicsTrack, factors: dict[int, float], frac: float) -> PhysicsTrack:
+    """The track as pass at time fraction ``frac`` (0: first pass, 1: last) finds it."""
+    if not factors:
+        return track
+    items = [replace(d, depth_mm=d.depth_mm * (1.0 + (factors[d.index] - 1.0) * frac))
+             for d in track.defects if d.index in factors]
+    return grown(track, items)
 
 
 def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: int = 0,
                 plan: PassPlan | None = None, positioning: Positioning = ODOMETRY_ALONE,
                 suffix: str = ".parquet",
-                progress: Callable[[int], Any] | None = None) -> tuple[PhysicsTrack, list[Path]]:
+                progress: Callable[[int], Any] | None = None,
+                schedule: Schedule | None = None) -> tuple[PhysicsTrack, list[Path]]:
     """Build ``world``'s track from ``seed`` and simulate ``passes`` passes over it into the
     folder ``out`` (module docstring). Pass ``i`` (from 0) runs along increasing position when
     ``i`` is even and back when odd, each with its own seed (``seed · 1000 + i + 1``), speed
@@ -108,22 +164,31 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     if passes < 1:
         raise RailwatchError(f"--passes must be at least 1, got {passes}")
     plan = plan or PassPlan()
+    schedule = schedule or Schedule()
     world.check()
     plan.check()
+    schedule.check()
     out = Path(out)
     (out / "twins").mkdir(parents=True, exist_ok=True)
     track = build_track(world, seed)
+    factors = schedule.growth_of(track, seed)
     coupling = coupled(world.vehicle, world.track, oversampling(plan.fs) * plan.fs / 2)
+    dated = schedule.start is not None
     with atomic_path(out / "layout.toml") as tmp:
-        tmp.write_text(layout_toml(layout(plan.fs)))
+        tmp.write_text(layout_toml(layout(plan.fs, dated)))
     paths, summaries = [], []
     for i in range(passes):
         pass_seed = seed * 1000 + i + 1
         direction = 1 if i % 2 == 0 else -1
-        p = simulate_pass(track, PassPlan(direction, plan.push_pull, plan.speed_ms, plan.fs),
+        now = _grown_for(track, factors, i / max(passes - 1, 1))
+        p = simulate_pass(now, PassPlan(direction, plan.push_pull, plan.speed_ms, plan.fs),
                           pass_seed, coupling)
         name = f"pass{i + 1:02d}"
         _record_positions(p, positioning, pass_seed, seed)
+        started = schedule.start_s() + i * schedule.every_days * 86400.0 if dated else None
+        if started is not None:
+            for cols in (p.columns, p.twin):
+                cols["utc"] = started + np.asarray(cols["time"], dtype=float)
         for rows, kind in ((p.crossings, "defects"), (p.features, "features")):
             atomic_csv(out / f"{name}.{kind}.csv", CROSSING_FIELDS, rows)
         write_recording(out / "twins" / f"{name}{suffix}", p.twin)
@@ -133,13 +198,16 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
                           "speed_ms": [round(float(p.columns["speed"].min()), 2),
                                        round(float(p.columns["speed"].max()), 2)],
                           "wheel_left_rail_m": [round(x, 2) for x in p.flights_m],
-                          "peak_wheel_load": round(p.peak_load, 3)})
+                          "peak_wheel_load": round(p.peak_load, 3), "started_s": started})
         if progress is not None:
             progress(1)
     atomic_csv(out / "track.features.csv", ITEM_FIELDS, [it.row() for it in track.features])
+    track = replace(track, defects=[replace(d, params=(*d.params, ("growth", factors[d.index])))
+                                    if d.index in factors else d for d in track.defects])
     write_register(out / "track.assets.csv", [it.row() for it in track.features])
     info = {"seed": seed, "passes": summaries, "fs": plan.fs, "speed_ms": list(plan.speed_ms),
             "push_pull": plan.push_pull, "positioning": asdict(positioning),
+            "schedule": asdict(schedule),
             "sensor_noise_ms2": dict(zip(CHANNELS, world.sensors.noise().tolist(), strict=True)),
             "world": world.to_dict(), "docs": "docs/physics.md"}
     with atomic_path(out / "physics.json") as tmp:
@@ -194,6 +262,8 @@ def reposition(folder: str | os.PathLike[str], out: str | os.PathLike[str],
         true = _read_columns(folder / "twins" / path.name, layout)["position"]
         data["position"] = recorded(np.asarray(true, dtype=float), positioning, seed,
                                     int(info["seed"]))
+        if entry.get("started_s") is not None:
+            data["utc"] = float(entry["started_s"]) + np.asarray(data["time"], dtype=float)
         write_recording(out / path.name, data)
         twin = out / "twins" / path.name
         if not twin.exists():

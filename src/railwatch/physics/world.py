@@ -134,6 +134,8 @@ class PhysicsTrack:
     x0: float
     path: FloatArray  # (2, n): rail 1, rail 2, with the defects
     clean: FloatArray  # (2, n): the clean twin
+    base: FloatArray | None = None  # (2, n): the rails before any item (irregularity,
+    # roughness, static deflection): what :func:`grown` rebuilds from
 
     def cumulative(self, clean: bool) -> FloatArray:
         """(2, n + 1): the running integral of the path (m²), for averaging over a stretch."""
@@ -171,46 +173,84 @@ def build_track(world: World, seed: int, items: tuple[list[Item], list[Item]] | 
                            np.random.default_rng([seed, 304 + rail]), ROUGHNESS_WAVELENGTHS_M)
             z[rail] += r[:n]
     z -= _static_deflection(world, features, rng, x0, n)
-    clean = z.copy()
-    for it in features:
-        _add(clean, it, x0)
-    path = clean.copy()
-    for it in defects:
-        _add(path, it, x0)
-    for it in [*features, *defects]:
-        wheel_path(clean, it, x0, world.vehicle.wheel_radius_m)
-        wheel_path(path, it, x0, world.vehicle.wheel_radius_m)
-    size = max(1, int(round(PATCH_M / DX_M)))
-    clean = uniform_filter1d(clean, size, axis=1, mode="nearest")
-    path = uniform_filter1d(path, size, axis=1, mode="nearest")
+    base = z.copy()
+    every = [*features, *defects]
+    radius = world.vehicle.wheel_radius_m
+    clean = _with_items(z, features, every, x0, radius)
+    path = _with_items(base.copy(), every, every, x0, radius)
     return PhysicsTrack(world=world, seed=seed, defects=defects, features=features, x0=x0,
-                        path=path, clean=clean)
+                        path=path, clean=clean, base=base)
+
+
+def _with_items(z: FloatArray, added: list[Item], rolled: list[Item], x0: float,
+                radius: float, offset: int = 0) -> FloatArray:
+    """The wheel path over rails ``z`` (changed in place; from grid point ``offset``): the
+    ``added`` items' heights, the wheel's size over each ``rolled`` item in turn, then the
+    contact patch."""
+    for it in added:
+        _add(z, it, x0, offset)
+    for it in rolled:
+        wheel_path(z, it, x0, radius, offset)
+    return uniform_filter1d(z, max(1, int(round(PATCH_M / DX_M))), axis=1, mode="nearest")
+
+
+def grown(track: PhysicsTrack, defects: list[Item]) -> PhysicsTrack:
+    """The track with some of its defects changed (``defects``: items with the indices of
+    ``track.defects``, a growing squat's deeper self): the wheel path rebuilt around each from
+    the rails before any item, the rest of it, the features and the clean twin kept."""
+    if track.base is None:
+        raise ValueError("the track keeps no base profile to rebuild from")
+    radius = track.world.vehicle.wheel_radius_m
+    now = {it.index: it for it in track.defects}
+    now.update({it.index: it for it in defects})
+    ordered = [now[it.index] for it in track.defects]
+    margin = 4 * WHEEL_SPAN_M + PATCH_M
+    pad = int(np.ceil(margin / DX_M))
+    path = track.path.copy()
+    for it in defects:
+        lo, hi = it.position_m - margin, it.end_m + margin
+        while True:  # every item overlapping the stretch, whole, with a margin
+            near = [o for o in [*track.features, *ordered]
+                    if o.end_m >= lo and o.position_m <= hi]
+            new_lo = min([lo, *(o.position_m - margin for o in near)])
+            new_hi = max([hi, *(o.end_m + margin for o in near)])
+            if (new_lo, new_hi) == (lo, hi):
+                break
+            lo, hi = new_lo, new_hi
+        i0 = max(int(np.floor((lo - track.x0) / DX_M)) - pad, 0)
+        i1 = min(int(np.ceil((hi - track.x0) / DX_M)) + pad, path.shape[1])
+        seg = _with_items(track.base[:, i0:i1].copy(), near, near, track.x0, radius, i0)
+        path[:, i0 + pad:i1 - pad] = seg[:, pad:seg.shape[1] - pad]
+    return PhysicsTrack(world=track.world, seed=track.seed, defects=ordered,
+                        features=track.features, x0=track.x0, path=path, clean=track.clean,
+                        base=track.base)
 
 
 def _rails(it: Item) -> list[int]:
     return [0, 1] if it.rail == 0 else [it.rail - 1]
 
 
-def _add(z: FloatArray, it: Item, x0: float) -> None:
+def _add(z: FloatArray, it: Item, x0: float, offset: int = 0) -> None:
     """Add an item's height change to the rails it lies on (a step's far end stays shifted
-    only over its relaxation length: beyond, the height change is 0)."""
+    only over its relaxation length: beyond, the height change is 0); ``z`` starts at grid
+    point ``offset`` of the track's grid from ``x0``."""
     i0 = int(np.floor((it.position_m - x0) / DX_M))
     i1 = int(np.ceil((it.end_m - x0) / DX_M)) + 1
     s = x0 + DX_M * np.arange(i0, i1, dtype=float) - it.position_m
     dz = it.height(s)
     for r in _rails(it):
-        z[r, i0:i1] += dz
+        z[r, i0 - offset:i1 - offset] += dz
 
 
-def wheel_path(z: FloatArray, it: Item, x0: float, radius: float) -> None:
+def wheel_path(z: FloatArray, it: Item, x0: float, radius: float, offset: int = 0) -> None:
     """Where a wheel of ``radius`` rolls over the item: the upper envelope of the circles on the
     rail, ``max_s z(x + s) + √(R² − s²) − R`` over |s| ≤ :data:`WHEEL_SPAN_M` (in place, over
-    the item and that span either side)."""
+    the item and that span either side; ``z`` starts at grid point ``offset``)."""
     half = int(round(WHEEL_SPAN_M / DX_M))
     s = DX_M * np.arange(-half, half + 1)
     circle = np.sqrt(radius**2 - s**2) - radius
-    i0 = max(int(np.floor((it.position_m - x0) / DX_M)) - 2 * half, 0)
-    i1 = min(int(np.ceil((it.end_m - x0) / DX_M)) + 2 * half + 1, z.shape[1])
+    i0 = max(int(np.floor((it.position_m - x0) / DX_M)) - 2 * half - offset, 0)
+    i1 = min(int(np.ceil((it.end_m - x0) / DX_M)) + 2 * half + 1 - offset, z.shape[1])
     for r in _rails(it):
         seg = z[r, i0:i1]
         out = grey_dilation(seg, structure=circle, size=len(circle), mode="nearest")
