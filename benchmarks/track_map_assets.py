@@ -29,17 +29,15 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
-import re
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.common import command as command_line
-from benchmarks.common import railwatch
+from benchmarks.common import railwatch, read_csv
+from benchmarks.track_map import page_head
 
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
@@ -55,10 +53,6 @@ KIND_NAMES = {"switch": "switch", "crossing": "crossing", "transition": "bridge 
               "level-crossing": "level crossing"}
 REPORT_PER_KM = 0.1
 
-
-def read_csv(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
 
 
 def register(folder: Path) -> Path:
@@ -157,12 +151,9 @@ def main() -> None:
     args = parser.parse_args()
     from scipy.stats import spearmanr
 
-    from railwatch.machine import cpu_name
-
     started = time.perf_counter()
-    lines = ["# The asset register on the physics test tracks", "",
-             f"Command: `{command_line(__name__)}`, {datetime.date.today().isoformat()}, "
-             f"{cpu_name()}, 2 cores. " + " ".join(__doc__.split("\n\n")[1].split()), "",
+    head, items = page_head(__name__, __doc__)
+    lines = ["# The asset register on the physics test tracks", "", head, "",
              "| positions | maps | assets labelled | defects left unexplained | explained away "
              "| unexplained false places per km | joints: Spearman (response, impact) | "
              "Spearman (kind_z, depth) | joints flagged abnormal (depth, mm) |",
@@ -190,8 +181,7 @@ def main() -> None:
             print(lines[-1], flush=True)
     depths = sorted(float(r["depth_mm"]) for seed in SEEDS for r in read_csv(
         args.work / f"track{seed}" / "track.defects.csv") if r["kind"] == "joint")
-    items = re.split(r"\n(?=\d\. )", __doc__.split("\n\n")[2])
-    lines += ["", "Columns:", "", *(" ".join(item.split()) for item in items)]
+    lines += ["", "Columns:", "", *items]
     lines += ["", f"The test tracks' joints, depth in mm: {', '.join(f'{d:.2f}' for d in depths)}."
               f" Made in {time.perf_counter() - started:.0f} s.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)

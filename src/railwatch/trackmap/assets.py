@@ -37,6 +37,7 @@ from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
 from railwatch.trackmap.folder import Location
 from railwatch.trackmap.fusion import Fused
+from railwatch.trackmap.trends import strengths
 
 #: The kinds of asset a register usually holds (any other kind is the user's own).
 KINDS = ("switch", "crossing", "insulated joint", "weld", "bridge transition", "level crossing")
@@ -171,19 +172,8 @@ def responses(assets: list[Asset], xs: list[NDArray[np.float64]],
               scores: list[NDArray[np.float64]], tolerance_m: float) -> list[Response]:
     """Each asset's response (module docstring) from the passes' scores ``scores[i]`` at map
     positions ``xs[i]``; most abnormal first."""
-    peak = np.full((len(assets), len(xs)), np.nan)
-    for j, (x, s) in enumerate(zip(xs, scores, strict=True)):
-        ok = np.isfinite(x) & np.isfinite(s)
-        x, s = x[ok], s[ok]
-        if not len(x):
-            continue
-        order = np.argsort(x)
-        x, s = x[order], s[order]
-        for i, a in enumerate(assets):
-            lo = np.searchsorted(x, a.start_m - tolerance_m, side="left")
-            hi = np.searchsorted(x, a.end_m + tolerance_m, side="right")
-            if hi > lo and x[0] <= a.start_m and x[-1] >= a.end_m:
-                peak[i, j] = float(s[lo:hi].max())
+    peak, _ = strengths(np.array([[a.start_m - tolerance_m, a.end_m + tolerance_m]
+                                  for a in assets]).reshape(-1, 2), xs, scores)
     z = np.full_like(peak, np.nan)
     kinds = np.array([a.kind for a in assets])
     for kind in set(kinds.tolist()):

@@ -37,7 +37,8 @@ PROFILE_KIND = "central-window"
 MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_km",
               "passes_seen", "passes_with_event", "passes_covered", "share", "confidence",
               "median_score", "channel", "group", "kind_guess", "first_seen", "last_seen",
-              "asset", "asset_kind")
+              "asset", "asset_kind", "growth", "growth_low", "growth_high", "trend_p",
+              "growing")
 COMBINED = "events.csv"  # every recording's events, a ``recording`` column first
 #: The arrays of ``NAME.profile.npz``: each sample's time (s), recorded position (m, NaN
 #: without one) and score per channel (n, C), and the channels' names and sensor groups.
@@ -57,6 +58,7 @@ class ScoreProfile:
     channel_score: NDArray[np.float32]  # (n, C)
     channels: tuple[str, ...]
     groups: tuple[str, ...]
+    time_s: NDArray[np.float64] | None = None  # (n,) each sample's time in its recording, s
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
@@ -121,6 +123,11 @@ class Location:
     passes_with_event: int = 0  # passes with an event over the place (votes: passes_seen)
     asset: str = ""  # with a register (track-map --assets): the asset's id or "unexplained"
     asset_kind: str = ""
+    growth: float = math.nan  # over dated passes (trackmap.trends): the fitted strength at the
+    growth_low: float = math.nan  # last pass over the first's, its 95 % interval,
+    growth_high: float = math.nan
+    trend_p: float = math.nan  # the chance of a trend this strong in passes in random order,
+    growing: str = ""  # and "yes" below trends.GROWING_P ("no"; "": no trend)
 
 
 # ----------------------------------------------------------------------------- reading
@@ -196,8 +203,9 @@ def _read_profile(path: Path) -> ScoreProfile | None:
         return None
     try:
         with np.load(path, allow_pickle=False) as f:
-            _, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
+            time_s, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
             profile = ScoreProfile(position=np.asarray(position, dtype=float),
+                                   time_s=np.asarray(time_s, dtype=float),
                                    channel_score=np.asarray(score, np.float32),
                                    channels=tuple(str(c) for c in channels),
                                    groups=tuple(str(g) for g in groups))

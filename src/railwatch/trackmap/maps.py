@@ -300,6 +300,12 @@ class TrackMap:
     fused: fusion.Fused | None = None
     level: float | None = None
 
+    def replace_places(self, places: list[Location]) -> None:
+        """The same places with more said of them (labels, trends), in the same order."""
+        shown = {id(p) for p in self.reported}
+        self.reported = [q for p, q in zip(self.places, places, strict=True) if id(p) in shown]
+        self.places = list(places)
+
 
 def make_map(passes: list[PassEvents], method: str = "fused", tolerance_m: float = 2.0,
              max_offset_m: float | None = 50.0, sides: str = "auto", min_events: str = "auto",

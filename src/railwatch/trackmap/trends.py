@@ -1,0 +1,193 @@
+"""A place's strength over dated passes, and whether it grows faster than chance.
+
+Per place and pass that covered it, the **strength** is the pass's highest score within the
+place's stretch (± ``reach_m``), in the detector's units, and the **speed** the pass ran there
+(from the scan's sample times and positions). Strengths are compared like with like:
+
+1. **Per pass**: ``log`` strength less the pass's own offset, the median over the places of
+   how far that pass sits above each place's median (a pass whose noise or gain is higher
+   raises every place alike);
+2. **Per place**: least squares of what is left on the pass's date (days) and on ``log``
+   speed (an impact changes with speed, and how much depends on the place: on the development
+   line the slopes ran from −2.6 for the smallest squats to +2.9 for welds and corrugation,
+   so one slope for the line took speed for growth). ``growth`` = ``exp(slope · span)``, the
+   fitted strength at the last pass over the first's, ``growth_low``/``growth_high`` its 95 %
+   interval, and the place is **growing** when the date's slope is positive with a one-sided
+   ``p`` (Student's t) below :data:`GROWING_P` (``trend_p``): a stable place is flagged that
+   often.
+
+A place needs :data:`MIN_PASSES` dated passes over it for a trend, one more with its speeds.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import t as student_t
+
+from railwatch.atomic import atomic_csv
+from railwatch.trackmap.folder import Location, PassEvents
+from railwatch.trackmap.fusion import Fused
+
+#: A place is growing when a stable place gives a slope this steep this rarely (one-sided).
+GROWING_P = 0.01
+#: Dated passes a place needs for a trend (one more when its speeds are known).
+MIN_PASSES = 4
+#: The strength is floored here (a score at or under 0 has no logarithm).
+FLOOR = 1e-3
+
+
+@dataclass(frozen=True)
+class Trend:
+    """A place's trend over the dated passes (module docstring); NaN where it has none."""
+
+    growth: float
+    growth_low: float
+    growth_high: float
+    trend_p: float
+    growing: bool
+    passes: int
+
+
+NO_TREND = Trend(math.nan, math.nan, math.nan, math.nan, False, 0)
+
+
+def days(started: list[str | None]) -> NDArray[np.float64]:
+    """Days since the first dated pass (NaN: undated)."""
+    import pandas as pd
+
+    stamps = [pd.Timestamp(s.rstrip("Zz")) if s else None for s in started]
+    known = [s for s in stamps if s is not None]
+    if not known:
+        return np.full(len(stamps), np.nan)
+    first = min(known)
+    return np.array([(s - first).total_seconds() / 86400.0 if s is not None else np.nan
+                     for s in stamps])
+
+
+def strengths(stretches: NDArray[np.float64], xs: list[NDArray[np.float64]],
+              scores: list[NDArray[np.float64]],
+              times: list[NDArray[np.float64] | None] | None = None,
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(stretches, passes): each pass's highest score on each stretch of the map ((n, 2) from
+    and to, m), and the speed it ran there (m/s, from the samples' ``times``); NaN where the
+    pass did not cover the whole stretch (or has no times)."""
+    stretches = np.asarray(stretches, dtype=float).reshape(-1, 2)
+    s = np.full((len(stretches), len(xs)), np.nan)
+    v = np.full_like(s, np.nan)
+    for j, (x, sc) in enumerate(zip(xs, scores, strict=True)):
+        ok = np.isfinite(x) & np.isfinite(sc)
+        order = np.argsort(x[ok])
+        xo, so = x[ok][order], sc[ok][order]
+        t = times[j] if times is not None else None
+        to = np.asarray(t)[ok][order] if t is not None else None
+        if not len(xo):
+            continue
+        for i, (lo_m, hi_m) in enumerate(stretches):
+            if not (xo[0] <= lo_m and xo[-1] >= hi_m):
+                continue
+            lo = np.searchsorted(xo, lo_m)
+            hi = np.searchsorted(xo, hi_m, side="right")
+            if hi <= lo:
+                continue
+            s[i, j] = float(so[lo:hi].max())
+            if to is not None and hi - lo > 1:
+                span_t = float(to[lo:hi].max() - to[lo:hi].min())
+                if span_t > 0:
+                    v[i, j] = float(xo[hi - 1] - xo[lo]) / span_t
+    return s, v
+
+
+def adjusted(strength: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Log strengths less each pass's own offset (module docstring, step 1)."""
+    y = np.log(np.maximum(strength, FLOOR))
+    with warnings.catch_warnings():  # rows or columns without a value
+        warnings.simplefilter("ignore", RuntimeWarning)
+        centred = y - np.nanmedian(y, axis=1, keepdims=True)
+        offset = np.nan_to_num(np.nanmedian(centred, axis=0))
+    return y - offset[None, :]
+
+
+def trend(y: NDArray[np.float64], t: NDArray[np.float64],
+          speed: NDArray[np.float64] | None = None) -> Trend:
+    """One place's trend from its adjusted log strengths ``y`` at days ``t`` (and the speeds
+    the passes ran there: taken out where every pass has one): least squares of ``y`` on the
+    date and log speed, the date's slope tested one-sided with Student's t."""
+    ok = np.isfinite(y) & np.isfinite(t)
+    lv = np.log(speed) if speed is not None else np.full(len(y), np.nan)
+    with_speed = bool(np.isfinite(lv[ok]).all())
+    need = MIN_PASSES + (1 if with_speed else 0)
+    if ok.sum() < need or np.ptp(t[ok]) <= 0:
+        return NO_TREND
+    cols = [np.ones(ok.sum()), t[ok] - t[ok].mean()]
+    if with_speed and np.ptp(lv[ok]) > 0:
+        cols.append(lv[ok] - lv[ok].mean())
+    X = np.column_stack(cols)
+    coef, _, rank, _ = np.linalg.lstsq(X, y[ok], rcond=None)
+    dof = int(ok.sum()) - X.shape[1]
+    if rank < X.shape[1] or dof < 1:
+        return NO_TREND
+    resid = y[ok] - X @ coef
+    cov = np.linalg.inv(X.T @ X) * float(resid @ resid) / dof
+    se = math.sqrt(max(float(cov[1, 1]), 1e-300))
+    slope = float(coef[1])
+    p = float(student_t.sf(slope / se, dof))
+    half = float(student_t.ppf(0.975, dof)) * se
+    span = float(np.ptp(t[ok]))
+    return Trend(float(np.exp(slope * span)), float(np.exp((slope - half) * span)),
+                 float(np.exp((slope + half) * span)), p, bool(p < GROWING_P and slope > 0),
+                 int(ok.sum()))
+
+
+#: Columns of the per-pass table (``MAP.passes.csv``): each place's strength on each pass.
+PASS_FIELDS = ("rank", "position_m", "pass", "started", "days", "strength", "speed_ms",
+               "adjusted")
+
+
+@dataclass
+class Dated:
+    """A map's places with their trends, and the per-pass rows behind them."""
+
+    places: list[Location]
+    rows: list[dict[str, object]]
+
+
+def with_trends(places: list[Location], passes: list[PassEvents], fused: Fused,
+                reach_m: float) -> Dated:
+    """The places of a fused map with their trends over the dated ``passes`` (in the order
+    the map fused them), and each place's strength per pass."""
+    centres = np.array([p.position_m for p in places], dtype=float)
+    started = [p.started for p in passes]
+    times = [p.profile.time_s if p.profile is not None else None for p in passes]
+    t = days(started)
+    if np.isfinite(t).sum() < MIN_PASSES or not len(places):
+        return Dated(places, [])
+    s, v = strengths(np.stack([centres - reach_m, centres + reach_m], axis=1), fused.pass_x,
+                     fused.pass_score, times)
+    y = adjusted(s)
+    out, rows = [], []
+    for i, place in enumerate(places):
+        tr = trend(y[i], t, v[i])
+        out.append(replace(place, growth=tr.growth, growth_low=tr.growth_low,
+                           growth_high=tr.growth_high, trend_p=tr.trend_p,
+                           growing="" if tr.passes == 0 else "yes" if tr.growing else "no"))
+        for j, p in enumerate(passes):
+            if np.isfinite(s[i, j]):
+                rows.append({"rank": place.rank, "position_m": f"{place.position_m:.2f}",
+                             "pass": p.name, "started": p.started or "",
+                             "days": "" if not np.isfinite(t[j]) else f"{t[j]:.3f}",
+                             "strength": f"{s[i, j]:.4f}",
+                             "speed_ms": "" if not np.isfinite(v[i, j]) else f"{v[i, j]:.2f}",
+                             "adjusted": f"{y[i, j]:.4f}"})
+    return Dated(out, rows)
+
+
+def write_passes(path: str | os.PathLike[str], dated: Dated) -> Path:
+    """``MAP.passes.csv``: each place's strength per pass (:data:`PASS_FIELDS`)."""
+    return atomic_csv(path, PASS_FIELDS, dated.rows)
