@@ -135,6 +135,9 @@ def test_track_map_with_a_register(tmp_path: Path, capsys) -> None:  # type: ign
     assert [r["id"] for r in table] == ["X1", "X2"]
     assert table[0]["place_rank"] and not table[1]["place_rank"]
     assert float(table[0]["response"]) > float(table[1]["response"])
+    with open(tmp_path / "m.worklist.csv", newline="") as fh:
+        work = list(csv.DictReader(fh))
+    assert len(work) == 3 and {r["what"] for r in work} == {"unexplained"}  # X1 is normal
     # No register: the columns stay, empty.
     assert main(["track-map", "--events", str(tmp_path), "--out", str(out)]) == 0
     with open(out, newline="") as fh:

@@ -124,6 +124,8 @@ a candidate defect), growth, growth_low, growth_high, trend_p, growing (over 4 d
 or more: the place's strength at the last pass over the first's, fitted with each pass's level
 and the place's speed taken out, its 95 % interval, and "yes" where a stable place gives a
 slope this steep less than 1 % of the time). MAP.passes.csv: each place's strength per pass.
+MAP.worklist.csv: where to send an inspector, most urgent first: growing unexplained places,
+then unexplained places, then assets that grow or answer more than their kind; each with why.
 \b
 --assets ASSETS.csv: the asset register, one row per asset: kind (switch, crossing, insulated
 joint, weld, bridge transition, level crossing or your own), position_m (and length_m) or
@@ -213,6 +215,8 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     register = tm.assets.read_assets(assets_file) if assets_file else None
     assets_out = out.with_name(out.stem + ".assets.csv")
     passes_out = out.with_name(out.stem + ".passes.csv")
+    worklist_out = out.with_name(out.stem + ".worklist.csv")
+    writable_file(worklist_out)
     if register is not None:
         writable_file(assets_out)
     if any(p.started for p in passes):
@@ -233,6 +237,8 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
         tm.assets.write_assets(assets_out, labelled)
     if dated is not None and dated.rows:
         tm.trends.write_passes(passes_out, dated)
+    work = tm.worklist.worklist(made.reported, labelled.responses if labelled else [])
+    tm.worklist.write_worklist(worklist_out, work)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
 
@@ -252,6 +258,9 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     if truth is not None and truth_m is not None:
         line += "; " + em.against_truth(made.reported, truth_m, truth,
                                         *tm.covered_range(passes), tolerance_m)
+    line += f"; work list: {len(work)} place{'s' if len(work) != 1 else ''}" + (
+        f", {sum(it.tier == 1 for it in work)} growing" if dated is not None and dated.rows
+        else "")
     info(line + f"; wrote {out}" + (f", {assets_out}" if labelled is not None else "")
          + (f", {passes_out}" if dated is not None and dated.rows else "")
-         + (f" and {plot}" if plot else ""))
+         + f", {worklist_out}" + (f" and {plot}" if plot else ""))
