@@ -65,7 +65,7 @@ date and selects them with --since and --until; a recording without a date is st
               show_default=True, help="Scan in this process, or each recording as a Ray task.")
 @click.option("--address", help="Ray cluster address (with --executor ray); default: start a "
                                  "local Ray on this machine.")
-@click.option("--dates", "dates_file", type=click.Path(path_type=Path),
+@click.option("--dates", "dates_file", type=click.Path(path_type=Path), metavar="DATES.csv",
               help="When each recording began (CSV: recording, started), if the recordings "
                    "carry no timestamp column (below).")
 def scan(model: Path, recordings: tuple[str, ...], more_recordings: tuple[str, ...], out: Path,
@@ -174,9 +174,9 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
               show_default=True,
               help="A place lies on an asset within this distance of its stretch (the map's "
                    "positions carry the passes' common odometry error: 1-3 m).")
-@click.option("--since", help="Map only the passes recorded on or after this date (ISO 8601: "
+@click.option("--since", metavar="DATE", help="Map only the passes recorded on or after this date (ISO 8601: "
                              "2026-03-01, or 2026-03-01T08:15); undated passes are left out.")
-@click.option("--until", help="... and on or before this date (a date alone: to its end).")
+@click.option("--until", metavar="DATE", help="... and on or before this date (a date alone: to its end).")
 @click.option("--truth", type=click.Path(path_type=Path),
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
