@@ -174,9 +174,11 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
               show_default=True,
               help="A place lies on an asset within this distance of its stretch (the map's "
                    "positions carry the passes' common odometry error: 1-3 m).")
-@click.option("--since", metavar="DATE", help="Map only the passes recorded on or after this date (ISO 8601: "
-                             "2026-03-01, or 2026-03-01T08:15); undated passes are left out.")
-@click.option("--until", metavar="DATE", help="... and on or before this date (a date alone: to its end).")
+@click.option("--since", metavar="DATE",
+              help="Map only the passes recorded on or after this date (ISO 8601: 2026-03-01, "
+                   "or 2026-03-01T08:15); undated passes are left out.")
+@click.option("--until", metavar="DATE",
+              help="... and on or before this date (a date alone: to its end).")
 @click.option("--truth", type=click.Path(path_type=Path),
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
@@ -213,54 +215,30 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
                              f"{sum(not p.started for p in left)} of them undated)")
     truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
     register = tm.assets.read_assets(assets_file) if assets_file else None
-    assets_out = out.with_name(out.stem + ".assets.csv")
-    passes_out = out.with_name(out.stem + ".passes.csv")
-    worklist_out = out.with_name(out.stem + ".worklist.csv")
-    writable_file(worklist_out)
-    if register is not None:
-        writable_file(assets_out)
-    if any(p.started for p in passes):
-        writable_file(passes_out)
+    beside = tm.worklist.outputs(out)
+    for key, wanted in (("assets", register is not None),
+                        ("passes", any(p.started for p in passes)), ("worklist", True)):
+        if wanted:
+            writable_file(beside[key])
     made = tm.maps.make_map(passes, method, tolerance_m, max_offset_m, sides, min_events,
                             false_per_km, min_share)
-    labelled = dated = None
-    if register is not None:
-        labelled = tm.assets.apply(made.places, register, tm.covered_range(passes),
-                                   asset_tolerance_m, made.fused)
-        made.replace_places(labelled.places)
-    if made.fused is not None:
-        dated = tm.trends.with_trends(made.places, passes, made.fused,
-                                      tolerance_m + tm.fusion.SLACK_M)
-        made.replace_places(dated.places)
-    tm.write_map(out, made.places)
-    if labelled is not None:
-        tm.assets.write_assets(assets_out, labelled)
-    if dated is not None and dated.rows:
-        tm.trends.write_passes(passes_out, dated)
-    work = tm.worklist.worklist(made.reported, labelled.responses if labelled else [])
-    tm.worklist.write_worklist(worklist_out, work)
+    done = tm.worklist.plan(made, passes, register, asset_tolerance_m,
+                            tolerance_m + tm.fusion.SLACK_M, tm.covered_range(passes))
+    written = tm.worklist.write_plan(out, made, done)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
 
         save_figure(track_map_figure(made.places, passes, made.reported, truth_m, made.fused,
-                                     made.level, labelled.on_line if labelled else ()), plot)
+                                     made.level, done.labelled.on_line if done.labelled else ()),
+                    plot)
     when = tm.maps.dates_said(passes, left)
     line = (f"{len(passes)} passes{f' ({when})' if when else ''}, "
             f"{sum(len(p.position) for p in passes)} events -> "
             f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
-    if labelled is not None:
-        line += "; " + tm.assets.summary(labelled, made.reported, register)
-    if dated is not None and dated.rows:
-        growing = [p.rank for p in made.reported if p.growing == "yes"]
-        line += (f"; {len(growing)} reported place{'s' if len(growing) != 1 else ''} growing"
-                 + (f" (ranks {', '.join(map(str, growing[:8]))}"
-                    f"{' ...' if len(growing) > 8 else ''})" if growing else ""))
+    if done.labelled is not None and register is not None:
+        line += "; " + tm.assets.summary(done.labelled, made.reported, register)
     if truth is not None and truth_m is not None:
         line += "; " + em.against_truth(made.reported, truth_m, truth,
                                         *tm.covered_range(passes), tolerance_m)
-    line += f"; work list: {len(work)} place{'s' if len(work) != 1 else ''}" + (
-        f", {sum(it.tier == 1 for it in work)} growing" if dated is not None and dated.rows
-        else "")
-    info(line + f"; wrote {out}" + (f", {assets_out}" if labelled is not None else "")
-         + (f", {passes_out}" if dated is not None and dated.rows else "")
-         + f", {worklist_out}" + (f" and {plot}" if plot else ""))
+    line += "; " + tm.worklist.growing_said(made, done)
+    info(line + f"; wrote {', '.join(map(str, written))}" + (f" and {plot}" if plot else ""))

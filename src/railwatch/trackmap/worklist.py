@@ -1,4 +1,6 @@
-"""The work list: the places an inspector should walk to, most urgent first.
+"""The work list: the places an inspector should walk to, most urgent first; and :func:`plan`,
+which says all that ``track-map`` knows of a map's places (the register's labels, the trends)
+before listing them.
 
 From a map's reported places (with the register's labels and the trends where ``track-map``
 has them) and the register's asset table, in tiers, each by evidence within:
@@ -20,8 +22,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from railwatch.atomic import atomic_csv
-from railwatch.trackmap.assets import UNEXPLAINED, Response
-from railwatch.trackmap.folder import Location
+from railwatch.trackmap.assets import UNEXPLAINED, Labelled, Register, Response, apply, write_assets
+from railwatch.trackmap.folder import Location, PassEvents, write_map
+from railwatch.trackmap.maps import TrackMap
+from railwatch.trackmap.trends import Dated, with_trends, write_passes
 
 #: Columns of ``MAP.worklist.csv``.
 FIELDS = ("priority", "tier", "position_m", "what", "why", "evidence", "growth",
@@ -80,3 +84,67 @@ def write_worklist(path: str | os.PathLike[str], items: list[Item]) -> Path:
                      "passes_seen": p.passes_seen, "passes_covered": p.passes_covered,
                      "last_seen": p.last_seen, "place_rank": p.rank})
     return atomic_csv(path, FIELDS, rows)
+
+
+@dataclass
+class Plan:
+    """A map with all that is said of its places: the register's labels and asset table
+    (None: no register), the trends over dated passes (None: a votes map; no rows: too few
+    dated passes) and the work list."""
+
+    labelled: Labelled | None
+    dated: Dated | None
+    items: list[Item]
+
+    @property
+    def has_trends(self) -> bool:
+        return self.dated is not None and bool(self.dated.rows)
+
+
+def plan(made: TrackMap, passes: list[PassEvents], register: Register | None,
+         asset_tolerance_m: float, reach_m: float, covered: tuple[float, float]) -> Plan:
+    """Label ``made``'s places by the ``register`` (its assets on the ``covered`` stretch),
+    give them their trends over the dated ``passes`` (the fused map's; within ``reach_m``),
+    and list what to inspect; ``made``'s places are replaced by the labelled ones."""
+    labelled = dated = None
+    if register is not None:
+        labelled = apply(made.places, register, covered, asset_tolerance_m, made.fused)
+        made.replace_places(labelled.places)
+    if made.fused is not None:
+        dated = with_trends(made.places, passes, made.fused, reach_m)
+        made.replace_places(dated.places)
+    items = worklist(made.reported, labelled.responses if labelled else [])
+    return Plan(labelled, dated, items)
+
+
+def write_plan(out: str | os.PathLike[str], made: TrackMap, done: Plan) -> list[Path]:
+    """The map (``out``), its asset table, per-pass table and work list beside it (those
+    there is something for: :func:`outputs`); the paths written."""
+    written = [write_map(out, made.places)]
+    paths = outputs(out)
+    if done.labelled is not None:
+        written.append(write_assets(paths["assets"], done.labelled))
+    if done.has_trends and done.dated is not None:
+        written.append(write_passes(paths["passes"], done.dated))
+    written.append(write_worklist(paths["worklist"], done.items))
+    return written
+
+
+def outputs(out: str | os.PathLike[str]) -> dict[str, Path]:
+    """The files a map writes beside ``MAP.csv``: ``MAP.assets.csv``, ``MAP.passes.csv``,
+    ``MAP.worklist.csv``."""
+    out = Path(out)
+    return {k: out.with_name(f"{out.stem}.{k}.csv") for k in ("assets", "passes", "worklist")}
+
+
+def growing_said(made: TrackMap, done: Plan) -> str:
+    """The closing line's part on trends and the work list."""
+    text = ""
+    if done.has_trends:
+        growing = [p.rank for p in made.reported if p.growing == "yes"]
+        text += (f"{len(growing)} reported place{'s' if len(growing) != 1 else ''} growing"
+                 + (f" (ranks {', '.join(map(str, growing[:8]))}"
+                    f"{' ...' if len(growing) > 8 else ''})" if growing else "") + "; ")
+    n = len(done.items)
+    return text + f"work list: {n} place{'s' if n != 1 else ''}" + (
+        f", {sum(it.tier == 1 for it in done.items)} growing" if done.has_trends else "")
