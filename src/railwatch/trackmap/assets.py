@@ -39,8 +39,6 @@ from railwatch.trackmap.folder import Location
 from railwatch.trackmap.fusion import Fused
 from railwatch.trackmap.trends import strengths
 
-#: The kinds of asset a register usually holds (any other kind is the user's own).
-KINDS = ("switch", "crossing", "insulated joint", "weld", "bridge transition", "level crossing")
 #: Columns a register may have; others are ignored and named.
 COLUMNS = ("id", "kind", "position_m", "length_m", "start_m", "end_m")
 #: Assets overlapping by more than this (m) are an error; less is a register's rounding (a
