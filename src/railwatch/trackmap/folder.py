@@ -130,6 +130,16 @@ class Location:
     growing: str = ""  # and "yes" below trends.GROWING_P ("no"; "": no trend)
 
 
+def started_time(text: str) -> Any:
+    """A pass's ``started`` (ISO 8601) as a ``pandas.Timestamp`` to compare with others: a time
+    with a zone in UTC with the zone dropped (``scan`` writes UTC with ``Z``), one without as it
+    is. Raises ``ValueError`` on text that is not a date-time."""
+    import pandas as pd
+
+    stamp = pd.Timestamp(text)
+    return stamp.tz_convert("UTC").tz_localize(None) if stamp.tzinfo is not None else stamp
+
+
 # ----------------------------------------------------------------------------- reading
 def read_scan(folder: str | os.PathLike[str]) -> list[PassEvents]:
     """Every recording of a scan folder (``railwatch scan --out``), in name order."""

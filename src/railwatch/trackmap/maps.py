@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 from railwatch.errors import RailwatchError
 from railwatch.trackmap import fusion
 from railwatch.trackmap.align import align, refine_by_profiles, verify_moves
-from railwatch.trackmap.folder import Location, PassEvents, ScoreProfile
+from railwatch.trackmap.folder import Location, PassEvents, ScoreProfile, started_time
 
 #: Passes with an event over a fused place that it needs, by the scale of the scanning model
 #: (docs/track-map.md, "Evidence and events"). At field scale a rail's own texture (its
@@ -346,12 +346,10 @@ def by_date(passes: list[PassEvents], since: str | None = None, until: str | Non
 
     def when(text: str, what: str, end: bool = False) -> pd.Timestamp:
         try:
-            stamp = pd.Timestamp(text.rstrip("Zz"))
+            stamp = started_time(text)
         except ValueError:
             raise RailwatchError(f"{what} {text}: give a date (2026-03-01) or a date-time "
                                  "(2026-03-01T08:15)") from None
-        if stamp.tzinfo is not None:  # as scan writes it: UTC, the zone dropped
-            stamp = stamp.tz_convert("UTC").tz_localize(None)
         day_only = len(text.strip()) <= 10
         return stamp + pd.Timedelta(days=1) - pd.Timedelta(seconds=1) if end and day_only \
             else stamp
@@ -365,7 +363,7 @@ def by_date(passes: list[PassEvents], since: str | None = None, until: str | Non
         raise RailwatchError(f"--until {until} is before --since {since}")
     kept, left = [], []
     for p in ordered:
-        at = pd.Timestamp(p.started.rstrip("Zz")) if p.started else None
+        at = started_time(p.started) if p.started else None
         inside = at is not None and (lo is None or at >= lo) and (hi is None or at <= hi)
         (kept if inside else left).append(p)
     return kept, left

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from scipy.stats import t as student_t
 
 from railwatch.atomic import atomic_csv
-from railwatch.trackmap.folder import Location, PassEvents
+from railwatch.trackmap.folder import Location, PassEvents, started_time
 from railwatch.trackmap.fusion import Fused
 
 #: A place is growing when a stable place gives a slope this steep this rarely (one-sided).
@@ -60,9 +60,7 @@ NO_TREND = Trend(math.nan, math.nan, math.nan, math.nan, False, 0)
 
 def days(started: list[str | None]) -> NDArray[np.float64]:
     """Days since the first dated pass (NaN: undated)."""
-    import pandas as pd
-
-    stamps = [pd.Timestamp(s.rstrip("Zz")) if s else None for s in started]
+    stamps = [started_time(s) if s else None for s in started]
     known = [s for s in stamps if s is not None]
     if not known:
         return np.full(len(stamps), np.nan)
