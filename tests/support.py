@@ -86,9 +86,10 @@ def profiles(n: int, defects: np.ndarray, seen: list[int] | None = None, bump: f
 
 def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
                channel_score: np.ndarray, channels: tuple[str, ...], groups: tuple[str, ...],
-               defects: np.ndarray) -> None:
+               defects: np.ndarray, route: np.ndarray | None = None) -> None:
     """One recording of a scan folder as ``railwatch scan`` writes it: its stretch, an event
-    at each defect (the highest channel's score there), its score profile."""
+    at each defect (the highest channel's score there), its score profile (and its GNSS
+    ``route``: (k, 3) time, latitude, longitude)."""
     (folder / f"{name}.scan.json").write_text(json.dumps(
         {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
          "profile": PROFILE_KIND}))
@@ -97,16 +98,27 @@ def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
         j = int(np.argmin(np.abs(x - d)))
         rows.append(f"1.0,1.1,1.05,axle_1,axle,{channel_score[j].max():.3f},3.0,{x[j]:.3f}")
     (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
+    extra = {} if route is None else {"route": route}
     np.savez(folder / f"{name}.profile.npz", time_s=time_s, position_m=x,
              channel_score=channel_score.astype(np.float32), channels=np.array(channels),
-             groups=np.array(groups))
+             groups=np.array(groups), **extra)
 
 
 def scan_folder(folder: Path, xs: list[np.ndarray], scores: list[np.ndarray],
-                defects: np.ndarray) -> None:
+                defects: np.ndarray, located: bool = False) -> None:
     """A scan folder of passes whose scores ``scores[i]`` are axle_1's (axle_2 has half of
-    them, body_1 none)."""
+    them, body_1 none), each run at 20 m/s; ``located``: with its GNSS route, exact fixes on
+    the line of :func:`railwatch.physics.gnss.line` (-500 to 20,000 m, seed 0) at 10 Hz."""
     for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        route = None
+        if located:
+            from railwatch.physics import gnss
+
+            line = gnss.line(-500.0, 20_000.0, 0)
+            t = np.arange(0.0, float(x[-1] / 20.0), 0.1)
+            lat, lon = gnss.to_degrees(np.interp(t * 20.0, line[0], line[1]),
+                                       np.interp(t * 20.0, line[0], line[2]))
+            route = np.stack([t, lat, lon], axis=1)
         write_pass(folder, f"pass{i:02d}", x, x / 20.0,
                    np.stack([s, 0.5 * s, np.zeros_like(s)], axis=1),
-                   ("axle_1", "axle_2", "body_1"), ("axle", "axle", "body"), defects)
+                   ("axle_1", "axle_2", "body_1"), ("axle", "axle", "body"), defects, route)

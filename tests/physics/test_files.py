@@ -172,3 +172,41 @@ def test_dated_passes_over_growing_squats(tmp_path: Path) -> None:
                     first * (1 + (g - 1) * (i - 1) / 2), rel=1e-3)
                 seen += r["defect"] in growth and i > 1
     assert seen > 0
+
+
+def test_simulated_passes_carry_gnss_fixes_along_the_line(tmp_path: Path) -> None:
+    """lat/lon columns: each fix within a few σ of where the pass truly was, both directions
+    on one line; the route a scan keeps reads them at 10 Hz."""
+    import pandas as pd
+
+    from railwatch.physics import gnss
+    from railwatch.recordings.readers import recording_route
+
+    out = tmp_path / "phys"
+    assert main(["simulate", "--out", str(out), "--passes", "2", "--track-km", "0.6",
+                 "--seed", "4", "--speed", "20-25", "--format", "parquet"]) == 0
+    layout = load_layout(out / "layout.toml")
+    assert (layout.latitude, layout.longitude) == ("lat", "lon")
+    s, east, north = gnss.line(-300, 1000, 4)
+    for name in ("pass01", "pass02"):
+        twin = pd.read_parquet(out / "twins" / f"{name}.parquet")
+        rec = pd.read_parquet(out / f"{name}.parquet")
+        assert np.array_equal(rec["lat"], twin["lat"])  # odometry errors leave GNSS alone
+        lat, lon = gnss.to_degrees(np.interp(twin["position"], s, east),
+                                   np.interp(twin["position"], s, north))
+        north_err = np.radians(rec["lat"] - lat) * gnss.EARTH_RADIUS_M
+        assert np.abs(north_err).max() < 5 * gnss.FIX_SIGMA_M
+        assert np.abs(north_err).max() > 0.01  # there is an error
+        route = recording_route(out / f"{name}.parquet", layout)
+        assert route is not None and route.shape[1] == 3
+        assert np.median(np.diff(route[:, 0])) == pytest.approx(0.1)
+        assert route[-1, 0] == pytest.approx(float(rec["time"].iloc[-1]))
+    # As far apart on the earth as along the track, give or take the fixes' error (the line's
+    # curves are gentle).
+    run = pd.read_parquet(out / "twins" / "pass01.parquet")
+    ends = run.iloc[[0, -1]]
+    apart = np.hypot(np.radians(np.diff(ends["lat"])) * gnss.EARTH_RADIUS_M,
+                     np.radians(np.diff(ends["lon"])) * gnss.EARTH_RADIUS_M
+                     * np.cos(np.radians(gnss.ORIGIN[0])))[0]
+    along = float(np.ptp(run["position"]))
+    assert along > 300 and abs(apart - along) < 0.02 * along + 6 * gnss.FIX_SIGMA_M

@@ -21,7 +21,7 @@ def test_the_key_round_trips_and_stays_out_of_old_model_files(tmp_path: Path) ->
     (tmp_path / "l.toml").write_text(layout_toml(layout))
     assert load_layout(tmp_path / "l.toml") == layout
     assert "timestamp" not in parse_layout({"fs": 1.0, "channels": ["a"]}).to_dict()
-    with pytest.raises(RailwatchError, match="'a' is both a channel and time/speed/position"):
+    with pytest.raises(RailwatchError, match="'a' is both a channel and one of time/speed"):
         parse_layout({"fs": 100.0, "channels": ["a"], "timestamp": "a"})
 
 

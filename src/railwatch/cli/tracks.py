@@ -48,7 +48,11 @@ stopped.
 Dates: a recording is dated by the layout's timestamp column (its first sample: a date-time,
 or seconds since 1970-01-01 UTC) or by --dates, a CSV with the columns recording (file name)
 and started (ISO 8601, e.g. 2026-03-01T08:15:00Z), which wins. track-map orders the passes by
-date and selects them with --since and --until; a recording without a date is still scanned.""")
+date and selects them with --since and --until; a recording without a date is still scanned.
+\b
+GNSS: where the layout names latitude and longitude columns (degrees), NAME.profile.npz also
+keeps the recording's route, its fixes at 10 Hz: track-map --geojson and --report then put the
+places on the earth.""")
 @click.option("--model", type=click.Path(path_type=Path), required=True,
               help="Model folder written by 'railwatch train --recordings' (or its .onnx).")
 @click.option("--recordings", "recordings", multiple=True, required=True, metavar="PATH...",
@@ -142,6 +146,15 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
               help="Map to write (.csv).")
 @click.option("--plot", type=click.Path(path_type=Path, dir_okay=False),
               help="Also draw the track with the evidence and the reported places (PNG).")
+@click.option("--report", "report_out", type=click.Path(path_type=Path, dir_okay=False),
+              metavar="MAP.html",
+              help="Also write the map as one HTML page that works offline: the line, the "
+                   "places by status, each place's strength per pass, the work list.")
+@click.option("--geojson", "geojson_out", type=click.Path(path_type=Path, dir_okay=False),
+              metavar="FILE",
+              help="Also write the reported places (and the line) for a GIS: .geojson, or .kml "
+                   "(needs GNSS fixes). With GNSS in the recordings, latitude and longitude; "
+                   "otherwise track km, no geometry.")
 @click.option("--method", type=click.Choice(METHOD_CHOICES), default="fused", show_default=True,
               help="fused: every pass's scores, calibrated and summed per place; votes: count "
                    "the passes with an event.")
@@ -183,7 +196,8 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
               help="True defects by position (a position_m column, and length_m if they are "
                    "long, e.g. the track.defects.csv of 'generate-run --passes'): recall and "
                    "false locations per km.")
-def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false_per_km: float,
+def track_map(events_dir: Path, out: Path, plot: Path | None, report_out: Path | None,
+              geojson_out: Path | None, method: str, false_per_km: float,
               tolerance_m: float, max_offset_m: float, sides: str, min_events: str,
               min_share: float, assets_file: Path | None, asset_tolerance_m: float,
               since: str | None, until: str | None, truth: Path | None) -> None:
@@ -198,7 +212,7 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     against each other at random.
     Examples:
       railwatch track-map --events scan/ --out map.csv --plot map.png --truth track.defects.csv
-      railwatch track-map --events scan/ --out map.csv --assets register.csv
+      railwatch track-map --events scan/ --out map.csv --assets register.csv --report map.html
     """
     from railwatch import trackmap as tm
     from railwatch.evaluation import maps as em
@@ -206,14 +220,19 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
     if out.suffix.lower() != ".csv":
         raise RailwatchError(f"--out {out.name}: write the map to a .csv file")
     writable_file(out)
-    if plot is not None:
-        writable_file(plot)
+    for extra in (plot, report_out, geojson_out):
+        if extra is not None:
+            writable_file(extra)
+    if report_out is not None and report_out.suffix.lower() not in (".html", ".htm"):
+        raise RailwatchError(f"--report {report_out.name}: write the report to a .html file")
     passes, left = tm.maps.by_date(tm.read_scan(events_dir), since, until)
     if not passes:
         raise RailwatchError(f"no pass of {events_dir} was recorded between --since and --until "
                              f"({len(left)} left out, "
                              f"{sum(not p.started for p in left)} of them undated)")
     truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
+    if geojson_out is not None:
+        tm.geo.check_out(geojson_out, passes)
     register = tm.assets.read_assets(assets_file) if assets_file else None
     beside = tm.worklist.outputs(out)
     for key, wanted in (("assets", register is not None),
@@ -241,4 +260,20 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, method: str, false
         line += "; " + em.against_truth(made.reported, truth_m, truth,
                                         *tm.covered_range(passes), tolerance_m)
     line += "; " + tm.worklist.growing_said(made, done)
+    if geojson_out is not None or report_out is not None:
+        geo = tm.geo.locate(made, passes, tm.covered_range(passes))
+        if geojson_out is not None:
+            written.append(tm.geo.write(geojson_out, made, done, geo))
+        if report_out is not None:
+            from railwatch.report.map_report import write_report
+
+            rows = tm.geo.features(made, done)
+            history = (tm.trends.history(made.reported, passes, made.fused,
+                                         tolerance_m + tm.fusion.SLACK_M)
+                       if made.fused is not None else [])
+            written.append(write_report(
+                report_out, f"railwatch track map: {out.stem}", line, rows,
+                geo.of([r["rank"] for r in rows]), geo.line, tm.covered_range(passes), history,
+                (made.fused.grid, made.fused.evidence) if made.fused is not None else None,
+                made.level))
     info(line + f"; wrote {', '.join(map(str, written))}" + (f" and {plot}" if plot else ""))

@@ -4,7 +4,8 @@ The folder holds what ``generate-run --passes`` writes, so every workflow reads 
 what only a physics world can give:
 
 =========================== ================================================================
-``layout.toml``             the recordings' columns: time, speed, position, six channels
+``layout.toml``             the recordings' columns: time, speed, position, lat and lon (the
+                            GNSS fixes, :mod:`railwatch.physics.gnss`), six channels
 ``passNN.<format>``         pass NN as a logger records it (position: the odometry's)
 ``passNN.defects.csv``      when and where pass NN's sensors crossed each defect, at what speed,
                             and which axle-box channel ran on its rail
@@ -39,11 +40,12 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
+from railwatch.physics import gnss
 from railwatch.physics.dynamics import coupled
 from railwatch.physics.features import ITEM_FIELDS
 from railwatch.physics.passes import PassPlan, PhysicsPass, oversampling, simulate_pass
 from railwatch.physics.vehicle import CHANNELS, GROUPS
-from railwatch.physics.world import PhysicsTrack, World, build_track, grown
+from railwatch.physics.world import MARGIN_M, PhysicsTrack, World, build_track, grown
 from railwatch.recordings.layout import Layout, layout_toml, load_layout
 from railwatch.recordings.readers import FORMATS, Recording, write_recording
 from railwatch.synthetic.track import Odometry, recorded_position
@@ -92,7 +94,20 @@ def layout(fs: float, dated: bool = False) -> Layout:
     """The layout of a physics pass written at ``fs`` Hz (``dated``: with its ``utc`` column,
     seconds since 1970-01-01 UTC)."""
     return Layout(fs=fs, channels=CHANNELS, groups=GROUPS, time="time", speed="speed",
-                  position="position", timestamp="utc" if dated else None)
+                  position="position", timestamp="utc" if dated else None, latitude="lat",
+                  longitude="lon")
+
+
+def _where(length_m: float, seed: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The line on the earth (:func:`railwatch.physics.gnss.line`) over a track's extent."""
+    return gnss.line(-MARGIN_M, length_m + MARGIN_M, seed)
+
+
+def _locate(cols: dict[str, FloatArray], true: FloatArray,
+            where: tuple[FloatArray, FloatArray, FloatArray], seed: int) -> None:
+    """A pass's GNSS fixes (``lat``, ``lon`` columns) where it truly was at ``true``."""
+    cols["lat"], cols["lon"] = gnss.fixes(true, np.asarray(cols["time"], dtype=float), where,
+                                          seed)
 
 
 @dataclass(frozen=True)
@@ -173,6 +188,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     track = build_track(world, seed)
     factors = schedule.growth_of(track, seed)
     coupling = coupled(world.vehicle, world.track, oversampling(plan.fs) * plan.fs / 2)
+    where = _where(world.length_m, seed)
     dated = schedule.start is not None
     with atomic_path(out / "layout.toml") as tmp:
         tmp.write_text(layout_toml(layout(plan.fs, dated)))
@@ -184,6 +200,8 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
         p = simulate_pass(now, PassPlan(direction, plan.push_pull, plan.speed_ms, plan.fs),
                           pass_seed, coupling)
         name = f"pass{i + 1:02d}"
+        for cols in (p.columns, p.twin):  # from the true positions, before they are recorded
+            _locate(cols, np.asarray(p.twin["position"], dtype=float), where, pass_seed)
         _record_positions(p, positioning, pass_seed, seed)
         started = schedule.start_s() + i * schedule.every_days * 86400.0 if dated else None
         if started is not None:
@@ -264,6 +282,9 @@ def reposition(folder: str | os.PathLike[str], out: str | os.PathLike[str],
                                     int(info["seed"]))
         if entry.get("started_s") is not None:
             data["utc"] = float(entry["started_s"]) + np.asarray(data["time"], dtype=float)
+        if layout.latitude:  # the same fixes: they do not depend on the odometry
+            _locate(data, np.asarray(true, dtype=float),
+                    _where(float(info["world"]["length_m"]), int(info["seed"])), seed)
         write_recording(out / path.name, data)
         twin = out / "twins" / path.name
         if not twin.exists():

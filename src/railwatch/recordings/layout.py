@@ -8,6 +8,8 @@ A small TOML or YAML file (``--layout``), for example::
     position = "pos"            # optional: track position (m); preferred over speed
     timestamp = "utc"           # optional: when each sample was taken (date-time, or seconds
                                 # since 1970-01-01 UTC): dates the recording for the map
+    latitude = "lat"            # optional, with longitude: GNSS fixes (degrees, WGS 84): put
+    longitude = "lon"           # the track map's places on a real map (track-map --geojson)
     scale = "field"             # optional: "field" (a real rail, the default) or "benchmark"
 
     [channels]                  # accelerometer columns, in the order the model sees them,
@@ -37,7 +39,10 @@ from typing import Any
 from railwatch.errors import RailwatchError
 from railwatch.mapping_files import read_mapping
 
-KEYS = ("fs", "channels", "time", "speed", "position", "timestamp", "scale")
+KEYS = ("fs", "channels", "time", "speed", "position", "timestamp", "latitude", "longitude",
+        "scale")
+#: The optional columns a layout may name besides the channels.
+NAMED = ("time", "speed", "position", "timestamp", "latitude", "longitude")
 SCALES = ("field", "benchmark")
 
 
@@ -53,6 +58,8 @@ class Layout:
     position: str | None = None
     scale: str = "field"
     timestamp: str | None = None  # read once, for the recording's start (recording_start)
+    latitude: str | None = None  # GNSS fixes, degrees: read by readers.recording_route
+    longitude: str | None = None
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -65,8 +72,9 @@ class Layout:
         d["channels"], d["groups"] = list(self.channels), list(self.groups)
         if self.scale == "field":  # the default: model files written before it stay the same
             del d["scale"]
-        if self.timestamp is None:  # the same
-            del d["timestamp"]
+        for key in ("timestamp", "latitude", "longitude"):  # the same
+            if d[key] is None:
+                del d[key]
         return d
 
     def select(self, groups: tuple[str, ...]) -> Layout:
@@ -115,11 +123,14 @@ def parse_layout(values: Any, source: str = "layout") -> Layout:
     if len(set(channels)) != len(channels):
         raise RailwatchError(f"{source}: a channel is named twice")
     named = {k: (str(values[k]) if values.get(k) else None)
-             for k in ("time", "speed", "position", "timestamp")}
+             for k in NAMED}
     clash = [v for v in named.values() if v in channels]
     if clash:
-        raise RailwatchError(f"{source}: column {clash[0]!r} is both a channel and time/speed/"
-                             "position/timestamp")
+        raise RailwatchError(f"{source}: column {clash[0]!r} is both a channel and one of "
+                             f"{'/'.join(NAMED)}")
+    if bool(named["latitude"]) != bool(named["longitude"]):
+        raise RailwatchError(f"{source}: name both latitude and longitude (GNSS fixes), or "
+                             "neither")
     scale = str(values.get("scale", "field"))
     if scale not in SCALES:
         raise RailwatchError(f"{source}: scale is {scale!r}: use \"field\" (a real rail) or "
@@ -135,7 +146,7 @@ def load_layout(path: str | os.PathLike[str]) -> Layout:
 def layout_toml(layout: Layout) -> str:
     """The layout as a TOML file (what :func:`load_layout` reads back)."""
     lines = [f"fs = {layout.fs!r}"]
-    for key in ("time", "speed", "position", "timestamp"):
+    for key in NAMED:
         value = getattr(layout, key)
         if value:
             lines.append(f"{key} = {json.dumps(value)}")

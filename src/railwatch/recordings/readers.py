@@ -647,6 +647,48 @@ def recording_start(path: str | os.PathLike[str], layout: Layout) -> str | None:
     return iso_time(value, f"{path.name}: timestamp column {column!r}")
 
 
+#: Seconds between the points of a recording's route (:func:`recording_route`): 10 Hz, as
+#: often as common GNSS receivers fix.
+ROUTE_EVERY_S = 0.1
+
+
+def recording_route(path: str | os.PathLike[str], layout: Layout,
+                    every_s: float = ROUTE_EVERY_S) -> NDArray[np.float64] | None:
+    """Where a recording was on the earth (the layout's ``latitude`` and ``longitude``
+    columns; None without them): ``(k, 3)`` time (s, counted as the scan's score profile
+    counts it: the time column, else the sample's index / fs), latitude and longitude (degrees,
+    WGS 84), every ``every_s`` and at the last sample; samples without a fix (NaN) left out."""
+    if not (layout.latitude and layout.longitude):
+        return None
+    lay = Layout(fs=layout.fs, channels=(layout.latitude, layout.longitude),
+                 groups=("gnss", "gnss"), time=layout.time)
+    rec = Recording(path, lay)
+    step = max(1, round(every_s * layout.fs))
+    rows, start, last = [], 0, None
+    with rec._reading():
+        for block in rec._source.blocks(CHUNK_ROWS):
+            lat, lon = block[lay.channels[0]], block[lay.channels[1]]
+            n = len(lat)
+            if not n:
+                continue
+            for name, values, bound in ((lay.channels[0], lat, 90), (lay.channels[1], lon, 180)):
+                bad = np.abs(np.nan_to_num(values)) > bound
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    raise RailwatchError(
+                        f"column {name!r} holds {values[i]:.6g} at row {start + i + 1}: GNSS "
+                        f"fixes are degrees (WGS 84), within ±{bound}")
+            time = block[lay.time] if lay.time else (start + np.arange(n)) / layout.fs
+            idx = np.arange((-start) % step, n, step)
+            rows.append(np.stack([time[idx], lat[idx], lon[idx]], axis=1))
+            last = np.array([[time[-1], lat[-1], lon[-1]]])
+            start += n
+    if last is not None and (not rows or (start - 1) % step):
+        rows.append(last)
+    route = np.concatenate(rows) if rows else np.zeros((0, 3))
+    return route[np.isfinite(route).all(axis=1)]
+
+
 def iso_time(value: Any, what: str) -> str:
     """A date-time (or seconds since 1970-01-01 UTC) as ISO 8601 to the second (module's
     :func:`recording_start`)."""

@@ -15,13 +15,14 @@ a map of places to inspect.
 :mod:`~railwatch.trackmap.trends`          a place's strength over dated passes, and whether
                                            it grows faster than chance
 :mod:`~railwatch.trackmap.worklist`        the places to inspect, most urgent first
+:mod:`~railwatch.trackmap.geo`             the places on the earth (GNSS), as GeoJSON or KML
 =========================================  ==================================================
 
 Scoring a map against the true defects is evaluation: :mod:`railwatch.evaluation.maps`. How the
 map works and its choices: ``docs/track-map.md``.
 """
 
-from railwatch.trackmap import assets, fusion, maps, trends, worklist
+from railwatch.trackmap import assets, fusion, geo, maps, trends, worklist
 from railwatch.trackmap.align import (
     align,
     chance_gain,
@@ -56,7 +57,7 @@ from railwatch.trackmap.maps import (
     wilson_lower,
 )
 
-__all__ = ["assets", "fusion", "maps", "trends", "worklist", "COMBINED", "EVENTS_SUFFIX",
+__all__ = ["assets", "fusion", "geo", "maps", "trends", "worklist", "COMBINED", "EVENTS_SUFFIX",
            "MAP_FIELDS", "MIN_EVENTS", "PROFILE_KIND", "PROFILE_SUFFIX", "SCAN_SUFFIX", "SIDES",
            "Location", "PassEvents", "ScoreProfile", "align", "chance_gain", "covered_range",
            "fit_transform", "fused_map", "min_events_for", "rail_scores", "read_scan",

@@ -43,11 +43,14 @@ COMBINED = "events.csv"  # every recording's events, a ``recording`` column firs
 #: The arrays of ``NAME.profile.npz``: each sample's time (s), recorded position (m, NaN
 #: without one) and score per channel (n, C), and the channels' names and sensor groups.
 PROFILE_ARRAYS = ("time_s", "position_m", "channel_score", "channels", "groups")
+#: ... and, where the recording carried GNSS fixes, its route: (k, 3) time (s, as time_s),
+#: latitude and longitude (degrees, WGS 84), at 10 Hz (readers.recording_route).
+ROUTE_ARRAY = "route"
 #: The keys of ``NAME.scan.json``: what was scanned, by which model, how, and the stretch of
 #: track it covered (recorded positions of its first and last sample).
 SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
-             "position_last_m", "profile", "wheel_turns_m", "scale", "model", "model_path",
-             "signature", "threshold_given", "scanned", "started")
+             "position_last_m", "profile", "wheel_turns_m", "scale", "gnss", "model",
+             "model_path", "signature", "threshold_given", "scanned", "started")
 
 
 @dataclass
@@ -59,6 +62,7 @@ class ScoreProfile:
     channels: tuple[str, ...]
     groups: tuple[str, ...]
     time_s: NDArray[np.float64] | None = None  # (n,) each sample's time in its recording, s
+    route: NDArray[np.float64] | None = None  # (k, 3) time, latitude, longitude (None: no GNSS)
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
@@ -193,11 +197,16 @@ def _read_pass(info_path: Path) -> PassEvents:
 
 def profile_arrays(time_s: NDArray[np.float64], position_m: NDArray[np.float64],
                    channel_score: NDArray[np.float32], channels: tuple[str, ...],
-                   groups: tuple[str, ...]) -> dict[str, NDArray[Any]]:
-    """``NAME.profile.npz``'s arrays by their names (:data:`PROFILE_ARRAYS`)."""
+                   groups: tuple[str, ...], route: NDArray[np.float64] | None = None
+                   ) -> dict[str, NDArray[Any]]:
+    """``NAME.profile.npz``'s arrays by their names (:data:`PROFILE_ARRAYS`, and
+    :data:`ROUTE_ARRAY` where there is a route)."""
     values = (np.asarray(time_s, dtype=float), np.asarray(position_m, dtype=float),
               np.asarray(channel_score, dtype=np.float32), np.array(channels), np.array(groups))
-    return dict(zip(PROFILE_ARRAYS, values, strict=True))
+    arrays = dict(zip(PROFILE_ARRAYS, values, strict=True))
+    if route is not None:
+        arrays[ROUTE_ARRAY] = np.asarray(route, dtype=float).reshape(-1, 3)
+    return arrays
 
 
 def scan_record(**values: Any) -> dict[str, Any]:
@@ -214,11 +223,14 @@ def _read_profile(path: Path) -> ScoreProfile | None:
     try:
         with np.load(path, allow_pickle=False) as f:
             time_s, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
+            route = f[ROUTE_ARRAY] if ROUTE_ARRAY in f.files else None
             profile = ScoreProfile(position=np.asarray(position, dtype=float),
                                    time_s=np.asarray(time_s, dtype=float),
                                    channel_score=np.asarray(score, np.float32),
                                    channels=tuple(str(c) for c in channels),
-                                   groups=tuple(str(g) for g in groups))
+                                   groups=tuple(str(g) for g in groups),
+                                   route=None if route is None
+                                   else np.asarray(route, dtype=float).reshape(-1, 3))
     except (OSError, ValueError, KeyError) as e:
         raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
                              "scan again") from None

@@ -6,7 +6,9 @@ For every recording ``NAME.EXT`` the scan folder gets ``NAME.events.csv`` (the e
 track map fuses across passes) and then ``NAME.scan.json`` (the recording, the model, the
 stretch of track it covered, when it was scanned and when it was recorded: ``started``, from
 the layout's ``timestamp`` column or a ``--dates`` table): written last, it marks the recording
-done. ``events.csv`` combines them all with a ``recording`` column. Only the driver writes; a
+done. Where the layout names ``latitude`` and ``longitude`` columns, the profile also keeps the
+recording's route (its GNSS fixes at 10 Hz): what puts the map's places on the earth.
+``events.csv`` combines them all with a ``recording`` column. Only the driver writes; a
 Ray task reads its recording and returns its events and profile.
 """
 
@@ -30,7 +32,7 @@ from railwatch.detection import pipeline
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
-from railwatch.recordings.readers import Recording, iso_time, recording_start
+from railwatch.recordings.readers import Recording, iso_time, recording_route, recording_start
 from railwatch.trackmap.folder import (
     COMBINED,
     EVENTS_SUFFIX,
@@ -102,7 +104,8 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
     started = {p.stem: dates.get(p.stem) or recording_start(p, layout) for p in paths}
     out.mkdir(parents=True, exist_ok=True)
     ident = model_id(model)
-    todo = [p for p in paths if not _done(out, p, ident, threshold)]
+    gnss = bool(layout.latitude and layout.longitude)
+    todo = [p for p in paths if not _done(out, p, ident, threshold, gnss)]
     for p in paths:
         if p not in todo:
             _redate(out / f"{p.stem}{SCAN_SUFFIX}", started[p.stem])
@@ -170,8 +173,9 @@ def read_dates(path: str | os.PathLike[str]) -> dict[str, str]:
     return out
 
 
-def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
-    """Scanned before by this model, with this threshold, from this very file."""
+def _done(out: Path, path: Path, ident: str, threshold: float | None, gnss: bool) -> bool:
+    """Scanned before by this model, with this threshold, from this very file (and with its
+    GNSS route when the layout names one)."""
     info_path = out / f"{path.stem}{SCAN_SUFFIX}"
     if not info_path.is_file() or not all((out / f"{path.stem}{suffix}").is_file()
                                           for suffix in (EVENTS_SUFFIX, PROFILE_SUFFIX)):
@@ -180,7 +184,8 @@ def _done(out: Path, path: Path, ident: str, threshold: float | None) -> bool:
         info = json.loads(info_path.read_text())
         return bool(info.get("model") == ident and info.get("threshold_given") == threshold
                     and info.get("signature") == _signature(path)
-                    and info.get("profile") == PROFILE_KIND)
+                    and info.get("profile") == PROFILE_KIND
+                    and bool(info.get("gnss", False)) == gnss)
     except (OSError, ValueError):
         return False
 
@@ -206,8 +211,10 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         position_last_m=float(finite[-1]) if len(finite) else None,
         profile=PROFILE_KIND, wheel_turns_m=result.wheel_turns,
         scale=rm.layout.scale,  # the model's: track-map's --min-events follows it
+        gnss=bool(lay.latitude and lay.longitude),
     )
-    arrays = profile_arrays(*profile.columns(), lay.channels, lay.groups)
+    arrays = profile_arrays(*profile.columns(), lay.channels, lay.groups,
+                            route=recording_route(path, lay))
     return pipeline.events_text(result.events, "csv"), arrays, info
 
 

@@ -186,6 +186,22 @@ def with_trends(places: list[Location], passes: list[PassEvents], fused: Fused,
     return Dated(out, rows)
 
 
+def history(places: list[Location], passes: list[PassEvents], fused: Fused, reach_m: float
+            ) -> list[dict[str, object]]:
+    """Each place's strength on each pass that covered it (as :func:`with_trends` measures
+    it, dated or not): rank, pass, started (ISO 8601 or None), order (the pass's place in
+    ``passes``, from 1), strength."""
+    if not places:
+        return []
+    centres = np.array([p.position_m for p in places], dtype=float)
+    s, _ = strengths(np.stack([centres - reach_m, centres + reach_m], axis=1), fused.pass_x,
+                     fused.pass_score)
+    return [{"rank": place.rank, "pass": p.name, "started": p.started, "order": j + 1,
+             "strength": float(s[i, j])}
+            for i, place in enumerate(places) for j, p in enumerate(passes)
+            if np.isfinite(s[i, j])]
+
+
 def write_passes(path: str | os.PathLike[str], dated: Dated) -> Path:
     """``MAP.passes.csv``: each place's strength per pass (:data:`PASS_FIELDS`)."""
     return atomic_csv(path, PASS_FIELDS, dated.rows)

@@ -32,6 +32,9 @@ FIELDS = ("priority", "tier", "position_m", "what", "why", "evidence", "growth",
           "growth_low", "growth_high", "passes_seen", "passes_covered", "last_seen",
           "place_rank")
 TIERS = {1: "growing, unexplained", 2: "unexplained", 3: "asset: changed or worse than its kind"}
+#: The status of a reported place the work list leaves off: a known asset that answers as its
+#: kind does.
+AS_ITS_KIND = "asset, as its kind"
 
 
 @dataclass(frozen=True)
@@ -84,6 +87,15 @@ def write_worklist(path: str | os.PathLike[str], items: list[Item]) -> Path:
                      "passes_seen": p.passes_seen, "passes_covered": p.passes_covered,
                      "last_seen": p.last_seen, "place_rank": p.rank})
     return atomic_csv(path, FIELDS, rows)
+
+
+def status_of(place: Location, items: list[Item]) -> tuple[int | None, str, str]:
+    """A reported place's priority on the work list (None: not on it), its status (a tier's
+    name, or :data:`AS_ITS_KIND`) and why it is listed."""
+    for i, it in enumerate(items, start=1):
+        if it.place.rank == place.rank:
+            return i, TIERS[it.tier], it.why
+    return None, AS_ITS_KIND, ""
 
 
 @dataclass
