@@ -22,7 +22,13 @@ a register they are assets, and a dipped one is an asset that answers more than 
    its dip's depth (Spearman's rank correlations over the maps' joints), and the depths of
    those flagged abnormal.
 
-Run after `benchmarks/physics.py` (its maps are reused); about 2 minutes on 2 cores.
+Second table, **a register learned from the passes** (`track-map --learn-assets`, no
+register given; its rule was developed on the development tracks 100-105): the same maps,
+scored against the track's features alone (its joints are then defects: nothing tells a
+learned register they are insulated joints). Assets labelled: of the features with a reported
+place, the share whose place is labelled with a learned asset, in all and per kind.
+
+Run after `benchmarks/physics.py` (its maps are reused); about 5 minutes on 2 cores.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from benchmarks.track_map import page_head
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ("physics",)
 PAGE = "docs/results/track-map/track-map-assets.md"
-MINUTES = 2
+MINUTES = 5
 
 SEEDS = (200, 201, 202)
 MAPS = ("n5-0", "n5-5", "n10-0")
@@ -76,26 +82,41 @@ def distance(x: float, lo: float, hi: float) -> float:
     return max(lo - x, x - hi, 0.0)
 
 
-def one_map(folder: Path, name: str, tol: float) -> dict[str, Any]:
-    """``track-map --assets`` of one of the physics bench's maps, scored."""
+def one_map(folder: Path, name: str, tol: float, learn: bool = False) -> dict[str, Any]:
+    """``track-map --assets`` (or ``--learn-assets``) of one of the physics bench's maps,
+    scored."""
+    return scored(folder, folder / "maps" / name, tol, learn)
+
+
+def scored(folder: Path, events: Path, tol: float, learn: bool = False) -> dict[str, Any]:
+    """``track-map --assets`` of the scan folder ``events`` over the track ``folder``, scored;
+    ``learn``: ``--learn-assets`` instead, scored against the track's features (its joints are
+    then defects: a learned register cannot know them for insulated joints)."""
     reg = register(folder)
-    out = folder / "maps" / name / "register-map.csv"
-    railwatch("track-map", "--events", str(out.parent), "--out", str(out), "--assets", str(reg))
+    out = events / ("learned-map.csv" if learn else "register-map.csv")
+    railwatch("track-map", "--events", str(events), "--out", str(out),
+              *(["--learn-assets"] if learn else ["--assets", str(reg)]))
     places = [r for r in read_csv(out) if float(r["false_per_km"] or "inf") <= REPORT_PER_KM]
     assets = {r["id"]: (float(r["position_m"]), float(r["position_m"]) + float(r["length_m"]),
-                        r["kind"]) for r in read_csv(reg)}
-    defects = [r for r in read_csv(folder / "track.defects.csv") if r["kind"] != "joint"]
+                        r["kind"]) for r in read_csv(reg)
+              if not (learn and r["kind"] == "insulated joint")}
+    defects = [r for r in read_csv(folder / "track.defects.csv")
+               if learn or r["kind"] != "joint"]
     stretch = {r["defect"]: (float(r["position_m"]),
                              float(r["position_m"]) + float(r["length_m"])) for r in defects}
     km = json.loads((folder / "physics.json").read_text())["world"]["length_m"] / 1000
     labelled, explained_away, unexplained_found, defects_found = [], [], 0, 0
     false_unexplained = 0
-    for lo, hi, _ in assets.values():
+    by_kind: dict[str, list[bool]] = {}
+    for lo, hi, kind in assets.values():
         near = [p for p in places if distance(float(p["position_m"]), lo, hi) <= tol]
         if near:
             ok_ids = {b for b, (blo, bhi, _) in assets.items()
                       if any(distance(float(p["position_m"]), blo, bhi) <= tol for p in near)}
-            labelled.append(any(p["asset"] in ok_ids for p in near))
+            ok = any(p["asset"] != "unexplained" for p in near) if learn else any(
+                p["asset"] in ok_ids for p in near)
+            labelled.append(ok)
+            by_kind.setdefault(kind, []).append(ok)
     for d, (lo, hi) in stretch.items():
         near = [p for p in places if distance(float(p["position_m"]), lo, hi) <= tol]
         if not near:
@@ -111,6 +132,10 @@ def one_map(folder: Path, name: str, tol: float) -> dict[str, Any]:
                 distance(x, lo, hi) <= tol for lo, hi in stretch.values()) and not any(
                 distance(x, lo, hi) <= tol for lo, hi, _ in assets.values()):
             false_unexplained += 1
+    if learn:
+        return {"labelled": labelled, "defects_found": defects_found,
+                "unexplained_found": unexplained_found, "explained_away": explained_away,
+                "false_unexplained": false_unexplained, "km": km, "by_kind": by_kind}
     joints = [(float(r["kind_z"]), r["abnormal"] == "yes", r["id"], float(r["response"]))
               for r in read_csv(out.with_name("register-map.assets.csv"))
               if r["kind"] == "insulated joint" and r["kind_z"]]
@@ -123,6 +148,10 @@ def one_map(folder: Path, name: str, tol: float) -> dict[str, Any]:
             "false_unexplained": false_unexplained, "km": km,
             "joints": [(z, flag, depth[i], resp, impact.get(i, np.nan))
                        for z, flag, i, resp in joints]}
+
+
+def share(flags: list[bool]) -> str:
+    return f"{100 * np.mean(flags):.0f} % ({sum(flags)}/{len(flags)})" if flags else "-"
 
 
 def joint_impacts(folder: Path, names: list[str]) -> dict[str, float]:
@@ -182,8 +211,29 @@ def main() -> None:
     depths = sorted(float(r["depth_mm"]) for seed in SEEDS for r in read_csv(
         args.work / f"track{seed}" / "track.defects.csv") if r["kind"] == "joint")
     lines += ["", "Columns:", "", *items]
-    lines += ["", f"The test tracks' joints, depth in mm: {', '.join(f'{d:.2f}' for d in depths)}."
-              f" Made in {time.perf_counter() - started:.0f} s.", ""]
+    lines += ["", f"The test tracks' joints, depth in mm: {', '.join(f'{d:.2f}' for d in depths)}."]
+    assert __doc__ is not None
+    lines += ["", " ".join(__doc__.split("\n\n")[3].split()), "",
+              "| positions | maps | assets labelled | switches | bridge transitions | level "
+              "crossings | crossing noses | defects left unexplained | explained away | "
+              "unexplained false places per km |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for label, (suffix, tol) in POSITIONING.items():
+        for maps in (("n5-0", "n5-5"), ("n10-0",)):
+            runs = [one_map(args.work / f"track{seed}{suffix}", m, tol, learn=True)
+                    for seed in SEEDS for m in maps]
+            lab = [v for r in runs for v in r["labelled"]]
+            kinds = {k: [v for r in runs for v in r["by_kind"].get(k, [])]
+                     for k in ("switch", "bridge transition", "level crossing", "crossing")}
+            found = sum(r["defects_found"] for r in runs)
+            unexpl = sum(r["unexplained_found"] for r in runs)
+            lines.append(
+                f"| {label} | {len(runs)} × {maps[0][1:].split('-')[0]} passes | "
+                f"{share(lab)} | " + " | ".join(share(v) for v in kinds.values())
+                + f" | {share([True] * unexpl + [False] * (found - unexpl))} | "
+                f"{sum(len(r['explained_away']) for r in runs)} | "
+                f"{sum(r['false_unexplained'] for r in runs) / sum(r['km'] for r in runs):.2f} |")
+            print(lines[-1], flush=True)
+    lines += ["", f"Made in {time.perf_counter() - started:.0f} s.", ""]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines))
     print(f"wrote {args.out}")

@@ -143,7 +143,8 @@ def test_an_impossible_event_rate_is_a_one_line_error(tmp_path: Path, capsys, ra
 
 def test_dated_passes_over_growing_squats(tmp_path: Path) -> None:
     """--start dates every pass (a utc column the layout names); --growing deepens the chosen
-    squats linearly in time, the others and the clean twins unchanged."""
+    squats linearly in time and lengthens them with it, the others and the clean twins
+    unchanged."""
     from railwatch.recordings.readers import recording_start
 
     out = tmp_path / "w"
@@ -166,10 +167,19 @@ def test_dated_passes_over_growing_squats(tmp_path: Path) -> None:
             for r in csv.DictReader(fh):
                 if r["kind"] != "squat":
                     continue
-                first = float(squats[r["defect"]]["depth_mm"])
+                was = squats[r["defect"]]
+                first = float(was["depth_mm"])
                 g = growth.get(r["defect"], 1.0)
-                assert float(r["depth_mm"]) == pytest.approx(
-                    first * (1 + (g - 1) * (i - 1) / 2), rel=1e-3)
+                f = 1 + (g - 1) * (i - 1) / 2
+                assert float(r["depth_mm"]) == pytest.approx(first * f, rel=1e-3)
+                # ... and longer about its centre, as the track's squats are at that depth:
+                # 2-10 cm from 0.1 to 1.5 mm, linear in the log of the depth.
+                grew = 0.08 * np.log(f) / np.log(15.0)
+                assert float(r["length_m"]) == pytest.approx(float(was["length_m"]) + grew,
+                                                             abs=2e-4)
+                centre = float(r["position_m"]) + float(r["length_m"]) / 2
+                assert centre == pytest.approx(float(was["position_m"])
+                                               + float(was["length_m"]) / 2, abs=2e-4)
                 seen += r["defect"] in growth and i > 1
     assert seen > 0
 

@@ -238,8 +238,9 @@ def generate_run(obj: dict, minutes: float, seed: int, fs: float, every_s: float
               help="Days from one pass to the next (with --start).")
 @click.option("--growing", type=click.FloatRange(0, 1), default=0.0, show_default=True,
               help="Share of the squats that grow: each deepens linearly in time to 1.2-3.0 "
-                   "times its first depth at the last pass (passNN.defects.csv: each pass's "
-                   "depth; track.defects.csv: growth=).")
+                   "times its first depth at the last pass, and lengthens with it "
+                   "(passNN.defects.csv: each pass's depth and length; track.defects.csv: the "
+                   "first, and growth=).")
 @odometry_options("")
 @click.option("--odometry-common-offset", type=click.FloatRange(min=0), default=2.0,
               show_default=True, help="Std (m) of an offset every pass shares (the reference "

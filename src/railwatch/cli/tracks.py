@@ -183,6 +183,11 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
 @click.option("--assets", "assets_file", type=click.Path(path_type=Path),
               help="Asset register (CSV, see below): label every place with the asset it lies "
                    "on or 'unexplained', and write MAP.assets.csv.")
+@click.option("--learn-assets", is_flag=True,
+              help="No register: propose as assets the places seen on nearly every pass, "
+                   "stable, on both rails alike (switches, bridge transitions, level "
+                   "crossings); they are labelled so, and MAP.learned-assets.csv is a register "
+                   "to confirm and give back with --assets.")
 @click.option("--asset-tolerance-m", type=click.FloatRange(min=0), default=5.0,
               show_default=True,
               help="A place lies on an asset within this distance of its stretch (the map's "
@@ -199,7 +204,8 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
 def track_map(events_dir: Path, out: Path, plot: Path | None, report_out: Path | None,
               geojson_out: Path | None, method: str, false_per_km: float,
               tolerance_m: float, max_offset_m: float, sides: str, min_events: str,
-              min_share: float, assets_file: Path | None, asset_tolerance_m: float,
+              min_share: float, assets_file: Path | None, learn_assets: bool,
+              asset_tolerance_m: float,
               since: str | None, until: str | None, truth: Path | None) -> None:
     """Turn repeated passes over one line into ranked places on the track.
 
@@ -233,16 +239,24 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, report_out: Path |
     truth_m = em.read_truth(truth) if truth else None  # read before the work: fail early
     if geojson_out is not None:
         tm.geo.check_out(geojson_out, passes)
+    if assets_file and learn_assets:
+        raise RailwatchError("give --assets (a register) or --learn-assets (one learned from "
+                             "the passes), not both")
+    if learn_assets and (method == "votes" or sides == "group"):
+        raise RailwatchError("--learn-assets needs the fused map with the rails told apart: "
+                             "--method fused and --sides swap, keep or auto")
     register = tm.assets.read_assets(assets_file) if assets_file else None
     beside = tm.worklist.outputs(out)
-    for key, wanted in (("assets", register is not None),
-                        ("passes", any(p.started for p in passes)), ("worklist", True)):
+    for key, wanted in (("assets", register is not None or learn_assets),
+                        ("passes", any(p.started for p in passes)), ("worklist", True),
+                        ("learned-assets", learn_assets)):
         if wanted:
             writable_file(beside[key])
     made = tm.maps.make_map(passes, method, tolerance_m, max_offset_m, sides, min_events,
                             false_per_km, min_share)
     done = tm.worklist.plan(made, passes, register, asset_tolerance_m,
-                            tolerance_m + tm.fusion.SLACK_M, tm.covered_range(passes))
+                            tolerance_m + tm.fusion.SLACK_M, tm.covered_range(passes),
+                            learn_assets)
     written = tm.worklist.write_plan(out, made, done)
     if plot is not None:
         from railwatch.report.figures import save_figure, track_map_figure
@@ -254,8 +268,11 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, report_out: Path |
     line = (f"{len(passes)} passes{f' ({when})' if when else ''}, "
             f"{sum(len(p.position) for p in passes)} events -> "
             f"{len(made.places)} places, {len(made.reported)} reported ({made.rule})")
-    if done.labelled is not None and register is not None:
-        line += "; " + tm.assets.summary(done.labelled, made.reported, register)
+    if done.proposed is not None:
+        line += f"; {len(done.proposed)} assets learned from the passes"
+    if done.labelled is not None:
+        line += "; " + tm.assets.summary(done.labelled, made.reported,
+                                         register or tm.learned.register(done.proposed or []))
     if truth is not None and truth_m is not None:
         line += "; " + em.against_truth(made.reported, truth_m, truth,
                                         *tm.covered_range(passes), tolerance_m)

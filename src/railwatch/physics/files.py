@@ -28,6 +28,7 @@ what only a physics world can give:
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 from collections.abc import Callable
@@ -42,7 +43,7 @@ from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
 from railwatch.physics import gnss
 from railwatch.physics.dynamics import coupled
-from railwatch.physics.features import ITEM_FIELDS
+from railwatch.physics.features import ITEM_FIELDS, Inventory, Item
 from railwatch.physics.passes import PassPlan, PhysicsPass, oversampling, simulate_pass
 from railwatch.physics.vehicle import CHANNELS, GROUPS
 from railwatch.physics.world import MARGIN_M, PhysicsTrack, World, build_track, grown
@@ -98,7 +99,7 @@ def layout(fs: float, dated: bool = False) -> Layout:
                   longitude="lon")
 
 
-def _where(length_m: float, seed: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+def line_of(length_m: float, seed: int) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The line on the earth (:func:`railwatch.physics.gnss.line`) over a track's extent."""
     return gnss.line(-MARGIN_M, length_m + MARGIN_M, seed)
 
@@ -115,8 +116,8 @@ class Schedule:
     """When the passes run and how the track changes between them: pass ``i`` (from 0) starts
     ``start`` + ``i`` · ``every_days`` (None: undated passes); a share ``growing`` of the squats
     grows, each to a depth ``g`` times its first one at the last pass, ``g`` drawn uniformly
-    from ``growth``, linearly in time between (docs/physics.md, "Dated passes and growing
-    squats")."""
+    from ``growth``, linearly in time between, and longer with it (:func:`grown_squat`;
+    docs/physics.md, "Dated passes and growing squats")."""
 
     start: str | None = None
     every_days: float = 7.0
@@ -156,12 +157,27 @@ class Schedule:
 
 
 def _grown_for(track: PhysicsTrack, factors: dict[int, float], frac: float) -> PhysicsTrack:
-    """The track as pass at time fraction ``frac`` (0: first pass, 1: last) finds it."""
+    """The track as pass at time fraction ``frac`` (0: first pass, 1: last) finds it: each
+    growing squat ``f`` = 1 + (g - 1) · ``frac`` times as deep, and longer (about its centre)
+    as the track's squats are at that depth (:func:`grown_squat`)."""
     if not factors:
         return track
-    items = [replace(d, depth_mm=d.depth_mm * (1.0 + (factors[d.index] - 1.0) * frac))
+    items = [grown_squat(d, 1.0 + (factors[d.index] - 1.0) * frac, track.world.inventory)
              for d in track.defects if d.index in factors]
     return grown(track, items)
+
+
+def grown_squat(squat: Item, f: float, inventory: Inventory) -> Item:
+    """``squat`` grown ``f`` times as deep and, as the inventory draws its squats (their
+    length rises linearly with the log of their depth, from the shortest at the shallowest to
+    the longest at the deepest), longer by (longest − shortest) · ln f / ln(deepest /
+    shallowest), about its centre: a squat's crack spreads along the rail as the surface
+    above it sinks (docs/physics.md, "Dated passes and growing squats")."""
+    lo, hi = inventory.squat_depth_mm
+    short, long = inventory.squat_length_m
+    length = squat.length_m + (long - short) * math.log(f) / math.log(hi / lo)
+    return replace(squat, depth_mm=squat.depth_mm * f, length_m=length,
+                   position_m=squat.position_m - (length - squat.length_m) / 2)
 
 
 def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: int = 0,
@@ -188,7 +204,7 @@ def write_world(out: str | os.PathLike[str], passes: int, world: World, seed: in
     track = build_track(world, seed)
     factors = schedule.growth_of(track, seed)
     coupling = coupled(world.vehicle, world.track, oversampling(plan.fs) * plan.fs / 2)
-    where = _where(world.length_m, seed)
+    where = line_of(world.length_m, seed)
     dated = schedule.start is not None
     with atomic_path(out / "layout.toml") as tmp:
         tmp.write_text(layout_toml(layout(plan.fs, dated)))
@@ -284,7 +300,7 @@ def reposition(folder: str | os.PathLike[str], out: str | os.PathLike[str],
             data["utc"] = float(entry["started_s"]) + np.asarray(data["time"], dtype=float)
         if layout.latitude:  # the same fixes: they do not depend on the odometry
             _locate(data, np.asarray(true, dtype=float),
-                    _where(float(info["world"]["length_m"]), int(info["seed"])), seed)
+                    line_of(float(info["world"]["length_m"]), int(info["seed"])), seed)
         write_recording(out / path.name, data)
         twin = out / "twins" / path.name
         if not twin.exists():

@@ -12,6 +12,8 @@ a map of places to inspect.
                                            reports
 :mod:`~railwatch.trackmap.assets`          the asset register: places labelled by the assets
                                            they lie on, assets measured against their kind
+:mod:`~railwatch.trackmap.learned`         a register learned from the passes: places that
+                                           look like assets, proposed
 :mod:`~railwatch.trackmap.trends`          a place's strength over dated passes, and whether
                                            it grows faster than chance
 :mod:`~railwatch.trackmap.worklist`        the places to inspect, most urgent first
@@ -22,7 +24,7 @@ Scoring a map against the true defects is evaluation: :mod:`railwatch.evaluation
 map works and its choices: ``docs/track-map.md``.
 """
 
-from railwatch.trackmap import assets, fusion, geo, maps, trends, worklist
+from railwatch.trackmap import assets, fusion, geo, learned, maps, trends, worklist
 from railwatch.trackmap.align import (
     align,
     chance_gain,
@@ -57,8 +59,9 @@ from railwatch.trackmap.maps import (
     wilson_lower,
 )
 
-__all__ = ["assets", "fusion", "geo", "maps", "trends", "worklist", "COMBINED", "EVENTS_SUFFIX",
-           "MAP_FIELDS", "MIN_EVENTS", "PROFILE_KIND", "PROFILE_SUFFIX", "SCAN_SUFFIX", "SIDES",
+__all__ = ["assets", "fusion", "geo", "learned", "maps", "trends", "worklist", "COMBINED",
+           "EVENTS_SUFFIX", "MAP_FIELDS", "MIN_EVENTS", "PROFILE_KIND", "PROFILE_SUFFIX",
+           "SCAN_SUFFIX", "SIDES",
            "Location", "PassEvents", "ScoreProfile", "align", "chance_gain", "covered_range",
            "fit_transform", "fused_map", "min_events_for", "rail_scores", "read_scan",
            "refine_by_profiles", "reported", "reported_fused", "single_linkage", "track_map",

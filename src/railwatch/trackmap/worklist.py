@@ -22,8 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from railwatch.atomic import atomic_csv
+from railwatch.errors import RailwatchError
+from railwatch.trackmap import learned
 from railwatch.trackmap.assets import UNEXPLAINED, Labelled, Register, Response, apply, write_assets
 from railwatch.trackmap.folder import Location, PassEvents, write_map
+from railwatch.trackmap.learned import Proposed
 from railwatch.trackmap.maps import TrackMap
 from railwatch.trackmap.trends import Dated, with_trends, write_passes
 
@@ -102,11 +105,12 @@ def status_of(place: Location, items: list[Item]) -> tuple[int | None, str, str]
 class Plan:
     """A map with all that is said of its places: the register's labels and asset table
     (None: no register), the trends over dated passes (None: a votes map; no rows: too few
-    dated passes) and the work list."""
+    dated passes), the work list, and the assets learned from the passes (None: not asked)."""
 
     labelled: Labelled | None
     dated: Dated | None
     items: list[Item]
+    proposed: list[Proposed] | None = None
 
     @property
     def has_trends(self) -> bool:
@@ -114,24 +118,31 @@ class Plan:
 
 
 def plan(made: TrackMap, passes: list[PassEvents], register: Register | None,
-         asset_tolerance_m: float, reach_m: float, covered: tuple[float, float]) -> Plan:
-    """Label ``made``'s places by the ``register`` (its assets on the ``covered`` stretch),
-    give them their trends over the dated ``passes`` (the fused map's; within ``reach_m``),
+         asset_tolerance_m: float, reach_m: float, covered: tuple[float, float],
+         learn: bool = False) -> Plan:
+    """Give ``made``'s places their trends over the dated ``passes`` (the fused map's; within
+    ``reach_m``), label them by the ``register`` (its assets on the ``covered`` stretch) or,
+    with ``learn``, by the assets learned from the passes (:mod:`railwatch.trackmap.learned`),
     and list what to inspect; ``made``'s places are replaced by the labelled ones."""
-    labelled = dated = None
-    if register is not None:
-        labelled = apply(made.places, register, covered, asset_tolerance_m, made.fused)
-        made.replace_places(labelled.places)
+    labelled = dated = proposed = None
     if made.fused is not None:
         dated = with_trends(made.places, passes, made.fused, reach_m)
         made.replace_places(dated.places)
+    if learn:
+        if made.fused is None:
+            raise RailwatchError("--learn-assets needs the fused map (--method fused)")
+        proposed = learned.learn(made.reported, made.fused, passes)
+        register = learned.register(proposed)
+    if register is not None:
+        labelled = apply(made.places, register, covered, asset_tolerance_m, made.fused)
+        made.replace_places(labelled.places)
     items = worklist(made.reported, labelled.responses if labelled else [])
-    return Plan(labelled, dated, items)
+    return Plan(labelled, dated, items, proposed)
 
 
 def write_plan(out: str | os.PathLike[str], made: TrackMap, done: Plan) -> list[Path]:
-    """The map (``out``), its asset table, per-pass table and work list beside it (those
-    there is something for: :func:`outputs`); the paths written."""
+    """The map (``out``), its asset table, per-pass table, work list and learned register
+    beside it (those there is something for: :func:`outputs`); the paths written."""
     written = [write_map(out, made.places)]
     paths = outputs(out)
     if done.labelled is not None:
@@ -139,14 +150,17 @@ def write_plan(out: str | os.PathLike[str], made: TrackMap, done: Plan) -> list[
     if done.has_trends and done.dated is not None:
         written.append(write_passes(paths["passes"], done.dated))
     written.append(write_worklist(paths["worklist"], done.items))
+    if done.proposed is not None:
+        written.append(learned.write_learned(paths["learned-assets"], done.proposed))
     return written
 
 
 def outputs(out: str | os.PathLike[str]) -> dict[str, Path]:
     """The files a map writes beside ``MAP.csv``: ``MAP.assets.csv``, ``MAP.passes.csv``,
-    ``MAP.worklist.csv``."""
+    ``MAP.worklist.csv``, ``MAP.learned-assets.csv``."""
     out = Path(out)
-    return {k: out.with_name(f"{out.stem}.{k}.csv") for k in ("assets", "passes", "worklist")}
+    return {k: out.with_name(f"{out.stem}.{k}.csv")
+            for k in ("assets", "passes", "worklist", "learned-assets")}
 
 
 def growing_said(made: TrackMap, done: Plan) -> str:

@@ -1,0 +1,134 @@
+"""A register learned from the passes (``track-map --learn-assets``): the places that look like
+the line's own assets, proposed for an engineer to confirm.
+
+Without a register, every switch, bridge transition and level crossing of a line is a place on
+the map. A place is proposed as an asset when all of these hold:
+
+1. **on nearly every pass**: it answers on at least :data:`SHARE` of the passes that covered it,
+   over :data:`MIN_PASSES` passes at least; a pass answers where its score stands above its
+   neighbourhood's 95th percentile (the fused map's calibration: p < :data:`ANSWER_P`). Not
+   the map's ``passes_seen`` (the pass's top 1 %): a switch, weaker than the line's strongest
+   items, answered on every pass of the development tracks and was seen on none;
+2. **stable**: not growing (where the passes are dated and the place has a trend);
+3. **both rails alike**: the weaker rail's evidence over the place's stretch is at least
+   :data:`ALIKE` of the stronger rail's. A switch, a bridge transition, a level crossing or a
+   pair of insulated joints changes both rails at one place; a squat, a weld, a dipped joint or
+   a broken rail's step lies on one rail, which the other rail's axle box feels only through
+   the wheelset.
+
+The third is what tells an asset from a defect that is there on every pass: the first two hold
+for every defect that does not grow. On the development tracks (physics tracks 100-105, 12
+passes each), the weaker rail's share of the evidence was 0.83-1.00 at the 7 switches on their
+own and 0.87-0.97 at the 12 bridge transitions, all learned, and 0.00-0.70 at 151 of the 152
+defects (one squat 0.82: learned). A turnout's **crossing nose** lies on one rail and answers
+as a dipped joint does (0.35-0.72): it is not learned, and stays unexplained until a register
+names it; nor, mostly, is a switch the simulator puts next to its crossing nose, whose place
+the nose dominates (1 of 5).
+
+The proposed register (``MAP.learned-assets.csv``) is a register file: ids ``L1``, ``L2`` ...,
+kind ``learned``, ``start_m``/``end_m`` the place's stretch, and why (evidence, passes, rails);
+an engineer confirms it, names the kinds, and gives it back with ``--assets``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from railwatch.atomic import atomic_csv
+from railwatch.errors import RailwatchError
+from railwatch.trackmap.assets import Asset, Register
+from railwatch.trackmap.folder import Location, PassEvents
+from railwatch.trackmap.fusion import Fused
+
+#: A learned asset answers (p < ANSWER_P against its neighbourhood) on at least this share of
+#: the passes that covered it ...
+SHARE = 0.9
+ANSWER_P = 0.05
+#: ... over at least this many passes ...
+MIN_PASSES = 4
+#: ... and its weaker rail has at least this share of its stronger rail's evidence.
+ALIKE = 0.8
+#: The kind a learned asset is given.
+LEARNED = "learned"
+#: Columns of ``MAP.learned-assets.csv``: a register, with why each asset was proposed.
+FIELDS = ("id", "kind", "start_m", "end_m", "place_rank", "evidence", "passes_answered",
+          "passes_covered", "rails_alike")
+
+
+@dataclass(frozen=True)
+class Proposed:
+    """A learned asset and the place it was learned from."""
+
+    asset: Asset
+    place: Location
+    answered: int  # passes on which it answered (p < ANSWER_P)
+    covered: int  # passes that covered it
+    alike: float  # the weaker rail's evidence over the stronger's
+
+
+def sides(fused: Fused, passes: list[PassEvents]) -> list[int]:
+    """Per row of ``fused.by_kind``, the side of the vehicle its channel sits on (its place
+    in its sensor group: a group's channels are its sides, listed alike for every group);
+    a one-line error where the map did not keep the rails apart."""
+    if fused.sides.split()[0] not in ("swap", "keep"):
+        raise RailwatchError("--learn-assets tells assets by both rails answering alike: map "
+                             "with --sides swap, keep or auto (not group)")
+    group_of: dict[str, str] = {}
+    for p in passes:
+        if p.profile is not None:
+            group_of.update(zip(p.profile.channels, p.profile.groups, strict=True))
+    side = []
+    for name in fused.kinds:
+        mates = [c for c in group_of if group_of[c] == group_of.get(name)]
+        side.append(mates.index(name) if name in mates else 0)
+    if len(set(side)) < 2:
+        raise RailwatchError("--learn-assets tells assets by both rails answering alike: the "
+                             "scanned channels sit on one side of the vehicle")
+    return side
+
+
+def learn(places: list[Location], fused: Fused, passes: list[PassEvents]) -> list[Proposed]:
+    """The reported ``places`` that look like assets (module docstring), by position."""
+    side = np.array(sides(fused, passes))
+    out = []
+    for p in sorted(places, key=lambda q: q.position_m):
+        if p.growing == "yes":
+            continue
+        lo = int(np.searchsorted(fused.grid, p.start_m))
+        hi = max(int(np.searchsorted(fused.grid, p.end_m, side="right")), lo + 1)
+        cal = fused.calibrated[:, lo:hi]
+        over = np.isfinite(cal).any(axis=1)
+        covered = int(over.sum())
+        answered = int((np.nanmax(cal[over], axis=1) >= -np.log(ANSWER_P)).sum()) \
+            if covered else 0
+        if covered < MIN_PASSES or answered < SHARE * covered:
+            continue
+        ev = fused.by_kind[:, lo:hi].max(axis=1)
+        per_side = np.array([ev[side == s].max() for s in sorted(set(side.tolist()))])
+        if not np.isfinite(per_side).all() or per_side.max() <= 0:
+            continue
+        alike = float(per_side.min() / per_side.max())
+        if alike >= ALIKE:
+            out.append(Proposed(Asset(f"L{len(out) + 1}", LEARNED, p.start_m, p.end_m), p,
+                                answered, covered, alike))
+    return out
+
+
+def register(proposed: list[Proposed]) -> Register:
+    """The proposed assets as a register (overlaps cannot arise: places do not overlap)."""
+    return Register(tuple(pr.asset for pr in proposed))
+
+
+def write_learned(path: str | os.PathLike[str], proposed: list[Proposed]) -> Path:
+    """``MAP.learned-assets.csv`` (:data:`FIELDS`): a register to confirm and give back with
+    ``--assets``."""
+    return atomic_csv(path, FIELDS, (
+        {"id": pr.asset.id, "kind": pr.asset.kind, "start_m": f"{pr.asset.start_m:.2f}",
+         "end_m": f"{pr.asset.end_m:.2f}", "place_rank": pr.place.rank,
+         "evidence": f"{pr.place.evidence:.2f}", "passes_answered": pr.answered,
+         "passes_covered": pr.covered, "rails_alike": f"{pr.alike:.2f}"}
+        for pr in proposed))
