@@ -127,7 +127,7 @@ dated them), asset, asset_kind (with --assets: the asset the place lies on, or "
 a candidate defect), growth, growth_low, growth_high, trend_p, growing (over 4 dated passes
 or more: the place's strength at the last pass over the first's, fitted with each pass's level
 and the place's speed taken out, its 95 % interval, and "yes" where a stable place gives a
-slope this steep less than 1 % of the time). MAP.passes.csv: each place's strength per pass.
+slope this steep less than 2.5 % of the time). MAP.passes.csv: each place's strength per pass.
 MAP.worklist.csv: where to send an inspector, most urgent first: growing unexplained places,
 then unexplained places, then assets that grow or answer more than their kind; each with why.
 \b

@@ -74,7 +74,7 @@ def sides(fused: Fused, passes: list[PassEvents]) -> list[int]:
     """Per row of ``fused.by_kind``, the side of the vehicle its channel sits on (its place
     in its sensor group: a group's channels are its sides, listed alike for every group);
     a one-line error where the map did not keep the rails apart."""
-    if fused.sides.split()[0] not in ("swap", "keep"):
+    if (fused.sides.split() or [""])[0] not in ("swap", "keep"):
         raise RailwatchError("--learn-assets tells assets by both rails answering alike: map "
                              "with --sides swap, keep or auto (not group)")
     group_of: dict[str, str] = {}

@@ -35,8 +35,13 @@ from railwatch.atomic import atomic_csv
 from railwatch.trackmap.folder import Location, PassEvents, started_time
 from railwatch.trackmap.fusion import Fused
 
-#: A place is growing when a stable place gives a slope this steep this rarely (one-sided).
-GROWING_P = 0.01
+#: A place is growing when a stable place gives a slope this steep this rarely (one-sided): half
+#: the 5 % of stable places a work list may flag, the rest a margin for residuals that are not
+#: quite Student's (2.4-3.6 % of 1,600 synthetic stable places, tests/trackmap/test_trends.py).
+#: On the development lines (physics lines 500, 504-506: 20 squats grown by half or more, 77
+#: stable defects) 0.01 flagged 45 % of the grown and 2.6 % of the stable, 0.025 60 % and 3.9 %,
+#: 0.05 75 % and 3.9 % (docs/maintenance.md).
+GROWING_P = 0.025
 #: Dated passes a place needs for a trend (one more when its speeds are known).
 MIN_PASSES = 4
 #: The strength is floored here (a score at or under 0 has no logarithm).
