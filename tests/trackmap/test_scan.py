@@ -195,3 +195,46 @@ def test_dated_passes_from_a_table_are_kept_and_ordered(track, tmp_path: Path, c
                  "--out", str(out), "--dates", str(dates)]) != 0
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "line 2: 'yesterday' is not a date-time" in err, err
+
+
+def test_a_gnss_layout_keeps_each_recording_route(track, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """With latitude and longitude in the layout, a scan keeps each recording's route (its
+    fixes at 10 Hz, timed as its score profile), a recording scanned before without them is
+    scanned again, and track-map --geojson puts the places on the earth."""
+    from dataclasses import replace
+
+    import pandas as pd
+
+    from railwatch.physics import gnss
+    from railwatch.recordings.layout import layout_toml
+    from railwatch.recordings.readers import write_recording
+
+    folder, paths = track
+    layout = load_layout(folder / "layout.toml")
+    s, east, north = gnss.line(-500.0, 5000.0, 0)
+    located = []
+    for p in paths:
+        cols = pd.read_parquet(p)
+        x = cols[layout.position].to_numpy()
+        cols["lat"], cols["lon"] = gnss.to_degrees(np.interp(x, s, east), np.interp(x, s, north))
+        located.append(write_recording(tmp_path / p.name, {c: cols[c].to_numpy() for c in cols}))
+    with_gnss = replace(layout, latitude="lat", longitude="lon")
+    (tmp_path / "gnss.toml").write_text(layout_toml(with_gnss))
+    out = tmp_path / "scan"
+    scan(folder / "model", located, out)  # the model's layout: no GNSS
+    assert not json.loads((out / f"{paths[0].stem}.scan.json").read_text())["gnss"]
+    again = scan(folder / "model", located, out, layout=with_gnss)
+    assert (again.scanned, again.reused) == (4, 0)
+    for p in located:
+        assert json.loads((out / f"{p.stem}.scan.json").read_text())["gnss"]
+        with np.load(out / f"{p.stem}{tf.PROFILE_SUFFIX}", allow_pickle=False) as f:
+            route, t = f[tf.ROUTE_ARRAY], f["time_s"]
+        assert route.shape[1] == 3 and np.median(np.diff(route[:, 0])) == pytest.approx(0.1)
+        assert abs(route[0, 0] - t[0]) < 0.2 and abs(route[-1, 0] - t[-1]) < 0.2
+    assert scan(folder / "model", located, out, layout=with_gnss).reused == 4
+    collection = tmp_path / "m.geojson"
+    assert main(["-q", "track-map", "--events", str(out), "--out", str(tmp_path / "m.csv"),
+                 "--geojson", str(collection)]) == 0
+    placed = [f for f in json.loads(collection.read_text())["features"]
+              if f["properties"]["kind"] == "place"]
+    assert placed and all(f["geometry"] is not None for f in placed)
