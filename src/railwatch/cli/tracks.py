@@ -282,15 +282,8 @@ def track_map(events_dir: Path, out: Path, plot: Path | None, report_out: Path |
         if geojson_out is not None:
             written.append(tm.geo.write(geojson_out, made, done, geo))
         if report_out is not None:
-            from railwatch.report.map_report import write_report
+            from railwatch.report.map_report import report_map
 
-            rows = tm.geo.features(made, done)
-            history = (tm.trends.history(made.reported, passes, made.fused,
-                                         tolerance_m + tm.fusion.SLACK_M)
-                       if made.fused is not None else [])
-            written.append(write_report(
-                report_out, f"railwatch track map: {out.stem}", line, rows,
-                geo.of([r["rank"] for r in rows]), geo.line, tm.covered_range(passes), history,
-                (made.fused.grid, made.fused.evidence) if made.fused is not None else None,
-                made.level))
+            written.append(report_map(report_out, made, done, passes, geo, line,
+                                      tolerance_m + tm.fusion.SLACK_M))
     info(line + f"; wrote {', '.join(map(str, written))}" + (f" and {plot}" if plot else ""))

@@ -13,7 +13,9 @@ What it shows, top to bottom:
 * the evidence fused over the passes along the track, with the reporting level and the places;
 * the work list and every other reported place as a table, each column sortable.
 
-The report draws what ``track-map`` found (:mod:`railwatch.trackmap`); it computes nothing.
+The report draws what ``track-map`` found (:mod:`railwatch.trackmap`): :func:`report_map`
+asks the map for its places, their points on the earth and their history, :func:`write_report`
+draws them.
 """
 
 from __future__ import annotations
@@ -21,12 +23,18 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+
+if TYPE_CHECKING:
+    from railwatch.trackmap.folder import PassEvents
+    from railwatch.trackmap.geo import Geo
+    from railwatch.trackmap.maps import TrackMap
+    from railwatch.trackmap.worklist import Plan
 
 #: Colours of the places' statuses (the work list's tiers, then a normal asset).
 COLOURS = {"growing, unexplained": "#d62728", "unexplained": "#ff7f0e",
@@ -62,6 +70,23 @@ def _when(started: str | None) -> float:
     from railwatch.trackmap.folder import started_time
 
     return float(started_time(started).value / 1e6)
+
+
+def report_map(path: str | os.PathLike[str], made: TrackMap, done: Plan,
+               passes: list[PassEvents], geo: Geo, summary: str, reach_m: float) -> Path:
+    """The report of a map (``made``) with all ``track-map`` said of it (``done``), its
+    ``passes``, its places on the earth (``geo``, :func:`railwatch.trackmap.geo.locate`), the
+    closing line as its ``summary``; each place's history within ``reach_m`` of it."""
+    from railwatch import trackmap as tm
+
+    rows = tm.geo.features(made, done)
+    history = (tm.trends.history(made.reported, passes, made.fused, reach_m)
+               if made.fused is not None else [])
+    return write_report(path, f"railwatch track map: {Path(path).stem}", summary, rows,
+                        geo.of([r["rank"] for r in rows]), geo.line,
+                        tm.covered_range(passes), history,
+                        (made.fused.grid, made.fused.evidence) if made.fused is not None
+                        else None, made.level)
 
 
 def write_report(path: str | os.PathLike[str], title: str, summary: str,

@@ -94,7 +94,7 @@ def sides(fused: Fused, passes: list[PassEvents]) -> list[int]:
 def learn(places: list[Location], fused: Fused, passes: list[PassEvents]) -> list[Proposed]:
     """The reported ``places`` that look like assets (module docstring), by position."""
     side = np.array(sides(fused, passes))
-    out = []
+    out: list[Proposed] = []
     for p in sorted(places, key=lambda q: q.position_m):
         if p.growing == "yes":
             continue
