@@ -141,6 +141,9 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         "what": [f"{p['asset_kind']} {p['asset']}" if p["asset_kind"] else "" for p in places],
         "evidence": [p["evidence"] if p["evidence"] is not None else math.nan for p in places],
         "growth": [p["growth"] if p["growth"] is not None else math.nan for p in places],
+        "interval": [f"{p['growth_low']:.2f}-{p['growth_high']:.2f}"
+                     if p["growth_low"] is not None and p["growth_high"] is not None else ""
+                     for p in places],
         "seen": [f"{p['passes_seen']} of {p['passes_covered']}" for p in places],
         "why": [p["why"] for p in places], "label": [label(p) for p in places],
         "lat": lat, "lon": lon})
@@ -159,7 +162,8 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         source.selected.indices = [first]
 
     tips = [("", "@label"), ("status", "@status"), ("evidence", "@evidence{0.0}"),
-            ("growth", "x@growth{0.00}"), ("seen on", "@seen passes"), ("why", "@why")]
+            ("growth", "x@growth{0.00} (@interval)"), ("seen on", "@seen passes"),
+            ("why", "@why")]
     plan = figure(title="the line, from the passes' GNSS fixes (m east and north)" if on_earth
                   else "the line by track km (the recordings carry no GNSS fixes)",
                   width=760, height=420 if on_earth else 200, match_aspect=on_earth,
@@ -219,8 +223,9 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                                       width=70),
                           TableColumn(field="growth", title="growth ×",
                                       formatter=NumberFormatter(format="0.00"), width=70),
+                          TableColumn(field="interval", title="95 %", width=80),
                           TableColumn(field="seen", title="passes seen", width=90),
-                          TableColumn(field="why", title="why", width=600)])
+                          TableColumn(field="why", title="why", width=520)])
 
     show = CustomJS(args={"places": source, "every": every, "hist": hist, "heading": heading},
                     code="""
