@@ -102,6 +102,8 @@ def test_it_renders_offline_and_a_click_shows_a_place_history(report: Path) -> N
                 return page.evaluate(f"() => Bokeh.documents[0].get_model_by_name('{name}')"
                                      f"{expr}")
 
+            # The register's four switches are drawn on the line.
+            assert model("assets", ".data_source.data.id.length") == 4
             # It opens on the work list's first place: the defect that grows, with 8 passes.
             assert "#1 place at km 1.80" in str(model("heading", ".text"))
             assert model("history", ".renderers[0].data_source.data.x.length") == 8

@@ -6,7 +6,8 @@ What it shows, top to bottom:
 * the line, drawn from the passes' GNSS fixes (east and north, in metres, of the line's first
   point) or, without them, straight along the track kilometre; every reported place on it,
   coloured by its status on the work list (growing and unexplained, unexplained, an asset that
-  changed or answers more than its kind, an asset that answers as its kind);
+  changed or answers more than its kind, an asset that answers as its kind), and the
+  register's assets as squares;
 * the selected place's strength on every pass, by date (by pass where the passes carry no
   date): the report opens on the work list's first place, and a click on any place (on the
   line, on the evidence or in the table) shows its own;
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -82,11 +84,16 @@ def report_map(path: str | os.PathLike[str], made: TrackMap, done: Plan,
     rows = tm.geo.features(made, done)
     history = (tm.trends.history(made.reported, passes, made.fused, reach_m)
                if made.fused is not None else [])
+    on_line = done.labelled.on_line if done.labelled is not None else []
+    centres = np.array([(a.start_m + a.end_m) / 2 for a in on_line], dtype=float)
+    alat, alon, _ = tm.geo.at_positions(made, passes, centres)
+    assets = [{"id": a.id, "kind": a.kind, "km": x / 1e3, "lat": la, "lon": lo}
+              for a, x, la, lo in zip(on_line, centres, alat, alon, strict=True)]
     return write_report(path, f"railwatch track map: {Path(path).stem}", summary, rows,
                         geo.of([r["rank"] for r in rows]), geo.line,
                         tm.covered_range(passes), history,
                         (made.fused.grid, made.fused.evidence) if made.fused is not None
-                        else None, made.level)
+                        else None, made.level, assets)
 
 
 def write_report(path: str | os.PathLike[str], title: str, summary: str,
@@ -95,13 +102,14 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                  line: NDArray[np.float64], covered: tuple[float, float],
                  history: list[dict[str, Any]], evidence: tuple[NDArray[np.float64],
                                                                 NDArray[np.float64]] | None,
-                 level: float | None) -> Path:
+                 level: float | None, assets: Sequence[dict[str, Any]] = ()) -> Path:
     """Write the report (module docstring). ``places``: every reported place's fields, work
     list first (:func:`railwatch.trackmap.geo.features`); ``where``: their latitude and
     longitude (NaN: unknown); ``line``: (k, 2) latitude, longitude (empty: no GNSS);
     ``covered``: the stretch mapped (m); ``history``: each place's strength per pass
     (:func:`railwatch.trackmap.trends.history`); ``evidence``: the fused evidence along the
-    map (positions m, values) and the reporting ``level``, None for a votes map."""
+    map (positions m, values) and the reporting ``level``, None for a votes map; ``assets``:
+    the register's assets on the line (id, kind, km, lat, lon), drawn as grey squares."""
     from bokeh.embed import file_html
     from bokeh.layouts import column, row
     from bokeh.models import (
@@ -171,6 +179,20 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                   x_axis_label="east (m)" if on_earth else "track km",
                   y_axis_label="north (m)" if on_earth else None)
     plan.line(lx, ly, color="#444444", line_width=2)
+    if assets:
+        akm = np.array([a["km"] for a in assets], dtype=float)
+        if on_earth:
+            ax, ay = _plane(np.array([a["lat"] for a in assets], dtype=float),
+                            np.array([a["lon"] for a in assets], dtype=float), lat0, lon0)
+        else:
+            ax, ay = akm, np.zeros(len(assets))
+        known = ColumnDataSource({"x": ax, "y": ay, "km": akm, "id": [a["id"] for a in assets],
+                                  "kind": [a["kind"] for a in assets]})
+        ticks = plan.scatter("x", "y", source=known, marker="square", size=7,
+                             fill_color="white", line_color="#666666",
+                             legend_label="asset in the register", name="assets")
+        plan.add_tools(HoverTool(renderers=[ticks], tooltips=[("asset", "@kind @id"),
+                                                              ("track km", "@km{0.000}")]))
     dots = plan.scatter("x", "y", source=source, size=11, fill_color="colour",
                         line_color="black", legend_field="status", name="places",
                         selection_line_width=3, nonselection_fill_alpha=0.7,
