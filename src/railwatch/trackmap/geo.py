@@ -111,9 +111,10 @@ def at_positions(made: TrackMap, passes: list[PassEvents], x: NDArray[np.float64
 def locate(made: TrackMap, passes: list[PassEvents], covered: tuple[float, float]) -> Geo:
     """The reported places and the ``covered`` stretch's line on the earth."""
     places = np.array([p.position_m for p in made.reported], dtype=float)
-    lat, lon, located = at_positions(made, passes, places)
     grid = np.arange(covered[0], covered[1] + LINE_STEP_M / 2, LINE_STEP_M)
-    glat, glon, _ = at_positions(made, passes, grid)
+    lats, lons, located = at_positions(made, passes, np.concatenate([places, grid]))
+    n = len(places)  # one look-up for the places and the line: each pass sorted once
+    lat, lon, glat, glon = lats[:n], lons[:n], lats[n:], lons[n:]
     ok = np.isfinite(glat) & np.isfinite(glon)
     return Geo([p.rank for p in made.reported], lat, lon,
                np.stack([glat[ok], glon[ok]], axis=1), located)
