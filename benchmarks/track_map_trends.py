@@ -192,6 +192,7 @@ def earth(folder: Path, geojson: Path) -> dict[int, Any]:
 
     from railwatch.physics import gnss
     from railwatch.physics.files import line_of
+    from railwatch.trackmap.geo import plane
 
     info = json.loads((folder / "physics.json").read_text())
     s, east, north = line_of(float(info["world"]["length_m"]), int(info["seed"]))
@@ -203,9 +204,7 @@ def earth(folder: Path, geojson: Path) -> dict[int, Any]:
 
         def off(x: float, lat: float = lat, lon: float = lon) -> float:
             want_lat, want_lon = gnss.to_degrees(np.interp(x, s, east), np.interp(x, s, north))
-            k = np.pi / 180 * gnss.EARTH_RADIUS_M
-            return float(np.hypot((lat - want_lat) * k,
-                                  (lon - want_lon) * k * np.cos(np.radians(want_lat))))
+            return float(np.hypot(*plane(lat, lon, float(want_lat), float(want_lon))))
 
         out[int(f["properties"]["rank"])] = off
     return out

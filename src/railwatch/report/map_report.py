@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.trackmap.geo import plane
 
 if TYPE_CHECKING:
     from railwatch.trackmap.folder import PassEvents
@@ -43,15 +44,6 @@ COLOURS = {"growing, unexplained": "#d62728", "unexplained": "#ff7f0e",
            "asset: changed or worse than its kind": "#9467bd", "asset, as its kind": "#8c8c8c"}
 #: The evidence curve is drawn with at most this many points (the highest of each bin kept).
 EVIDENCE_POINTS = 6000
-EARTH_RADIUS_M = 6_371_008.8
-
-
-def _plane(lat: NDArray[np.float64], lon: NDArray[np.float64], lat0: float, lon0: float
-           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Latitude and longitude as metres east and north of (``lat0``, ``lon0``)."""
-    east = np.radians(np.asarray(lon) - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
-    north = np.radians(np.asarray(lat) - lat0) * EARTH_RADIUS_M
-    return east, north
 
 
 def _peaks(x: NDArray[np.float64], y: NDArray[np.float64], n: int
@@ -131,8 +123,8 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
     km = np.array([p["position_m"] / 1e3 for p in places], dtype=float)
     if on_earth:
         lat0, lon0 = float(line[0, 0]), float(line[0, 1])
-        x, y = _plane(lat, lon, lat0, lon0)
-        lx, ly = _plane(line[:, 0], line[:, 1], lat0, lon0)
+        x, y = plane(lat, lon, lat0, lon0)
+        lx, ly = plane(line[:, 0], line[:, 1], lat0, lon0)
     else:
         x, y = km, np.zeros(len(km))
         lx, ly = np.array(covered, dtype=float) / 1e3, np.zeros(2)
@@ -182,7 +174,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
     if assets:
         akm = np.array([a["km"] for a in assets], dtype=float)
         if on_earth:
-            ax, ay = _plane(np.array([a["lat"] for a in assets], dtype=float),
+            ax, ay = plane(np.array([a["lat"] for a in assets], dtype=float),
                             np.array([a["lon"] for a in assets], dtype=float), lat0, lon0)
         else:
             ax, ay = akm, np.zeros(len(assets))

@@ -40,6 +40,8 @@ from railwatch.trackmap.worklist import Plan, status_of
 
 #: The line's points are this far apart along the map (m).
 LINE_STEP_M = 10.0
+#: Mean earth radius (m; IUGG): degrees to metres on a sphere's local plane.
+EARTH_RADIUS_M = 6_371_008.8
 #: What ``--geojson`` writes by the file's suffix.
 SUFFIXES = {".geojson": "geojson", ".json": "geojson", ".kml": "kml"}
 
@@ -62,12 +64,21 @@ class Geo:
     def of(self, ranks: list[int]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Latitude and longitude of the places of these ranks (NaN: unknown)."""
         at = {r: i for i, r in enumerate(self.ranks)}
-        idx = [at.get(r, -1) for r in ranks]
-        pick = np.array([i >= 0 for i in idx], dtype=bool)
+        idx = np.array([at.get(r, -1) for r in ranks], dtype=int)
+        pick = idx >= 0
         lat, lon = np.full(len(ranks), np.nan), np.full(len(ranks), np.nan)
-        lat[pick] = self.lat[[i for i in idx if i >= 0]]
-        lon[pick] = self.lon[[i for i in idx if i >= 0]]
+        lat[pick], lon[pick] = self.lat[idx[pick]], self.lon[idx[pick]]
         return lat, lon
+
+
+def plane(lat: NDArray[np.float64], lon: NDArray[np.float64], lat0: float, lon0: float
+          ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Latitude and longitude (degrees) as metres east and north of (``lat0``, ``lon0``), on
+    the sphere's local plane (under a millimetre off over a few km)."""
+    east = np.radians(np.asarray(lon, dtype=float) - lon0) * EARTH_RADIUS_M * math.cos(
+        math.radians(lat0))
+    north = np.radians(np.asarray(lat, dtype=float) - lat0) * EARTH_RADIUS_M
+    return east, north
 
 
 def has_route(passes: list[PassEvents]) -> bool:
