@@ -188,6 +188,23 @@ def test_items_keep_their_distance_and_sizes() -> None:
     assert {f.kind for f in features} == {"switch", "crossing", "transition", "level-crossing"}
 
 
+def test_a_turnouts_crossing_nose_lies_its_lead_from_the_switch_either_way() -> None:
+    """20-30 m from switch toe to crossing nose, whether the switch or the nose comes first
+    along the track (until 2026-12-04 a nose-first turnout put its switch 0.3-0.5 m away)."""
+    orders = set()
+    for seed in range(6):
+        _, features = place_items(5000.0, Inventory(turnouts_per_km=2.0),
+                                  np.random.default_rng(seed))
+        switches = [f for f in features if f.kind == "switch"]
+        noses = [f for f in features if f.kind == "crossing"]
+        assert len(switches) == len(noses) == 10
+        for sw in switches:
+            nose = min(noses, key=lambda n: abs(n.position_m - sw.position_m))
+            assert 20.0 <= abs(nose.position_m - sw.position_m) <= 30.0
+            orders.add(nose.position_m > sw.position_m)
+    assert orders == {True, False}
+
+
 def test_a_grown_defect_changes_the_wheel_path_near_it_only() -> None:
     """grown() rebuilds the wheel path around a changed defect from the rails before any item:
     unchanged, it gives the track's own path; deeper, a deeper path there and nothing else."""

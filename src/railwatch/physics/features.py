@@ -234,10 +234,12 @@ def place_items(length_m: float, inventory: Inventory,
     for _ in range(_count(inventory.turnouts_per_km, km)):
         lead = float(rng.uniform(20.0, 30.0))
         sw_len, cr_len = float(rng.uniform(0.3, 0.6)), float(rng.uniform(0.3, 0.5))
-        start = put(lead + cr_len)
-        first, second = (start, start + lead) if rng.random() < 0.5 else (start + cr_len, start)
-        features.append(Item(0, "switch", first, sw_len, float(rng.uniform(0.3, 1.0)), 0))
-        features.append(Item(0, "crossing", second, cr_len, float(rng.uniform(1.0, 2.5)),
+        # The crossing nose lies ``lead`` beyond the switch toe, whichever end a train
+        # running up the track meets first.
+        start = put(lead + max(sw_len, cr_len))
+        switch, nose = (start, start + lead) if rng.random() < 0.5 else (start + lead, start)
+        features.append(Item(0, "switch", switch, sw_len, float(rng.uniform(0.3, 1.0)), 0))
+        features.append(Item(0, "crossing", nose, cr_len, float(rng.uniform(1.0, 2.5)),
                              int(rng.integers(1, 3))))
     for _ in range(_count(inventory.level_crossings_per_km, km)):
         length = float(rng.uniform(2.0, 5.0))
