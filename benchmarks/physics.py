@@ -263,8 +263,8 @@ def maps(folder: Path, tolerance: float, oracle_found: dict[str, dict[int, bool]
             if not out.exists():  # a map is kept: the scan it was made of is kept too
                 sub = subset(scan, names, out.parent)
                 cli("track-map", "--events", str(sub), "--out", str(out))
-            places = [float(r["position_m"]) for r in read_csv(out)
-                      if float(r["false_per_km"]) <= 0.1]
+            listed = read_csv(out)
+            places = [float(r["position_m"]) for r in listed if float(r["false_per_km"]) <= 0.1]
             km = json.loads((folder / "physics.json").read_text())["world"]["length_m"] / 1000
             mapped = score_places(places, on_track, features, km, tolerance)
             framed = score_places(places, on_track, features, km, tolerance, remove_frame=True)
@@ -281,8 +281,25 @@ def maps(folder: Path, tolerance: float, oracle_found: dict[str, dict[int, bool]
                          "false_per_km_frame": framed.false_per_km,
                          "frame_m": mapped.frame_offset_m, "offsets": mapped.offsets_m,
                          "places": len(places),
+                         "weld_z": weld_z(listed, defects, tolerance),
                          "oracle": {d: v >= min(2, n) for d, v in votes.items()}})
     return rows
+
+
+def weld_z(listed: list[dict[str, Any]], defects: list[dict[str, Any]], tolerance: float
+           ) -> dict[int, float]:
+    """Each weld's highest ``weld_z`` of the map's listed places within ``tolerance`` of it (the
+    weld layer's fused test there; NaN: no place)."""
+    out = {}
+    for d in defects:
+        if d["kind"] != "weld":
+            continue
+        lo, hi = float(d["position_m"]) - tolerance, float(d["position_m"]) + float(
+            d["length_m"]) + tolerance
+        near = [float(r.get("weld_z") or "nan") for r in listed
+                if lo <= float(r["position_m"]) <= hi]
+        out[int(d["defect"])] = max(near, default=math.nan)
+    return out
 
 
 def oracle_by_pass(folder: Path) -> dict[str, dict[int, bool]]:
@@ -634,16 +651,20 @@ def track_allows(work: Path, seeds: list[int], map_rows: list[dict[str, Any]]) -
                      for k in ("both rails", "one rail")]
             lines.append(f"| {label} | {where} | {cells[0]} | {cells[1]} |")
     lines += ["", "Each weld of 0.3 mm or more on the test tracks, the bound's z beside the "
-              "map's (5 passes, GNSS-aided):\n",
-              "| track | weld | depth (mm) | crown (mm) | bound z (both rails) | found by the "
-              "map |", "|---|---|---|---|---|---|"]
+              "map's (5 passes, GNSS-aided): the map's weld layer's z there (the weld test on "
+              "the rails' height the axle boxes measured, fused over the passes; each map's "
+              "value, NaN where no listed place is near) and whether a reported place found "
+              "it:\n",
+              "| track | weld | depth (mm) | crown (mm) | bound z (both rails) | the map's weld "
+              "z | found by the map |", "|---|---|---|---|---|---|---|"]
     for w in sorted((w for w in got["welds"] if w["seed"] in seeds and w["depth"] >= 0.3),
                     key=lambda w: w["both rails"]):
-        found = [r["found"][w["defect"]] for r in map_rows
-                 if r["n"] == 5 and r["track"].startswith(f"track{w['seed']}")
-                 and w["defect"] in r["found"]]
+        mine = [r for r in map_rows if r["n"] == 5 and r["track"].startswith(f"track{w['seed']}")
+                and w["defect"] in r["found"]]
+        found = [r["found"][w["defect"]] for r in mine]
+        zs = ", ".join(f"{r['weld_z'].get(w['defect'], math.nan):.1f}" for r in mine)
         lines.append(f"| {w['seed']} | {w['defect']} | {w['depth']:.2f} | {w['crown']:.3f} | "
-                     f"{w['both rails']:.1f} | {sum(found)} of {len(found)} maps |")
+                     f"{w['both rails']:.1f} | {zs} | {sum(found)} of {len(found)} maps |")
     return [*lines, ""]
 
 

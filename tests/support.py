@@ -86,10 +86,11 @@ def profiles(n: int, defects: np.ndarray, seen: list[int] | None = None, bump: f
 
 def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
                channel_score: np.ndarray, channels: tuple[str, ...], groups: tuple[str, ...],
-               defects: np.ndarray, route: np.ndarray | None = None) -> None:
+               defects: np.ndarray, route: np.ndarray | None = None,
+               weld: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """One recording of a scan folder as ``railwatch scan`` writes it: its stretch, an event
     at each defect (the highest channel's score there), its score profile (and its GNSS
-    ``route``: (k, 3) time, latitude, longitude)."""
+    ``route``: (k, 3) time, latitude, longitude; its weld test: positions and z (k, 2))."""
     (folder / f"{name}.scan.json").write_text(json.dumps(
         {"position_first_m": float(x[0]), "position_last_m": float(x[-1]),
          "profile": PROFILE_KIND}))
@@ -99,6 +100,8 @@ def write_pass(folder: Path, name: str, x: np.ndarray, time_s: np.ndarray,
         rows.append(f"1.0,1.1,1.05,axle_1,axle,{channel_score[j].max():.3f},3.0,{x[j]:.3f}")
     (folder / f"{name}.events.csv").write_text("\n".join(rows) + "\n")
     extra = {} if route is None else {"route": route}
+    if weld is not None:
+        extra.update(weld_position_m=weld[0], weld_z=weld[1].astype(np.float32))
     np.savez(folder / f"{name}.profile.npz", time_s=time_s, position_m=x,
              channel_score=channel_score.astype(np.float32), channels=np.array(channels),
              groups=np.array(groups), **extra)

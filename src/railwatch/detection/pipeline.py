@@ -22,12 +22,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
+from railwatch.detection import welds
 from railwatch.detection.stream import Event, StreamingDetector
 from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError, one_line
-from railwatch.recordings import wheel
+from railwatch.recordings import rails, wheel
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Chunk, Recording
@@ -121,26 +122,32 @@ def median_speed(recordings: Sequence[Recording], every: int = 50) -> float | No
 
 
 def recording_info(layout: Layout, prep: Preparation,
-                   rule: ThresholdRule | None = None) -> dict[str, str]:
+                   rule: ThresholdRule | None = None,
+                   response: rails.AxleResponse | None = None) -> dict[str, str]:
     """The extra file a recordings model carries (``Detector.save(extra_files=...)``): the
-    layout, the preparation and the rule that set the detector's threshold (the value itself is
-    stored once, with the detector's statistics)."""
+    layout, the preparation, the rule that set the detector's threshold (the value itself is
+    stored once, with the detector's statistics) and, when identified, the axle boxes'
+    response (the weld test's, :mod:`railwatch.recordings.rails`)."""
     rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
-    info = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
-            "threshold_rule": rule.describe()}
+    info: dict[str, Any] = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
+                            "threshold_rule": rule.describe()}
+    if response is not None:
+        info["axle_response"] = response.to_dict()
     return model_folder.recording_file(info)
 
 
 def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
                         prep: Preparation, out: str | os.PathLike[str],
-                        rule: ThresholdRule | None = None) -> float:
+                        rule: ThresholdRule | None = None,
+                        response: rails.AxleResponse | None = None) -> float:
     """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set its
     threshold by ``rule`` (default :func:`event_threshold` at the layout scale's rate) and save
-    the model folder with ``recording.json``; returns the threshold."""
+    the model folder with ``recording.json`` (and the axle boxes' ``response``, if any);
+    returns the threshold."""
     rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
     detector.fit(X)
     threshold = detector.set_threshold(rule)
-    detector.save(out, extra_files=recording_info(layout, prep, rule))
+    detector.save(out, extra_files=recording_info(layout, prep, rule, response))
     return threshold
 
 
@@ -153,6 +160,7 @@ class Trained:
     windows: tuple[int, ...]  # the training windows' shape (N, T, C)
     minutes: float  # of recording read
     field_settings: dict[str, Any]  # the detector's field-scale settings (not overridden)
+    response: rails.AxleResponse | None = None  # the axle boxes' (None: no weld test)
 
 
 def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Path],
@@ -207,8 +215,18 @@ def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Pa
     if progress:
         say(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
             f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
-    threshold = fit_recording_model(detector, X, layout, prep, out, rule)
-    return Trained(threshold, per_minute, tuple(X.shape), total / 60, mine)
+    response = None
+    if layout.scale == "field" and welds.axle_pair(layout) and (layout.speed or layout.position):
+        try:
+            response = welds.identify_response(sources)
+            say(f"the axle boxes' response identified from {len(sources)} recording(s) at "
+                f"{response.speed_ms[0]:.0f}-{response.speed_ms[1]:.0f} m/s: P2 at "
+                f"{response.p2_hz:.0f} Hz (the weld test: the rails' height, fused by "
+                "track-map)")
+        except RailwatchError as e:
+            say(f"no weld test: {e}")
+    threshold = fit_recording_model(detector, X, layout, prep, out, rule, response)
+    return Trained(threshold, per_minute, tuple(X.shape), total / 60, mine, response)
 
 
 @dataclass
@@ -219,6 +237,7 @@ class RecordingModel:
     layout: Layout
     preparation: Preparation
     threshold: float
+    response: rails.AxleResponse | None = None  # the axle boxes' (the weld test), if trained
 
     def layout_for(self, given: Layout | None) -> Layout:
         """The layout to read recordings with: the model's, or ``given`` (other column names)
@@ -256,10 +275,12 @@ def load_recording_model(model: str | os.PathLike[str]) -> RecordingModel:
         if len(layout.channels) != detector.n_channels_:
             raise ValueError(f"its layout names {len(layout.channels)} channels, the model was "
                              f"trained on {detector.n_channels_}")
+        response = rails.AxleResponse.from_dict(info["axle_response"]) \
+            if "axle_response" in info else None
     except (KeyError, TypeError, ValueError, RailwatchError) as e:
         raise RailwatchError(f"{source} is damaged ({one_line(e)}): train the model again") \
             from None
-    return RecordingModel(detector, layout, prep, threshold)
+    return RecordingModel(detector, layout, prep, threshold, response)
 
 
 def _preparation(values: Any) -> Preparation:

@@ -10,15 +10,13 @@ knowledge of the track is its statistics can do better from any number of passes
 Gaussian track, which the simulator's irregularity and roughness are; the static deflection's
 soft and voided sleepers are in the spectra too).
 
-The test is the whitened matched filter (the likelihood ratio of a shape of unknown size in
-Gaussian noise of known spectrum), run over every position of both rails and a bank of shapes:
-``t(τ) = Σ_k W_k* [Σ_k⁻¹ X_k]_r e^{iΩ_k τ} / N``, ``z = t / √(Σ_k |W_k|² [Σ_k⁻¹]_rr / N)``,
-with ``X`` the two rails' DFT, ``Σ_k`` their 2×2 cross-spectral matrix and ``W`` the shape's DFT
-on rail ``r``; ``z`` is N(0, 1) at every position where there is no defect, and its mean at the
-defect is the defect's detectability ``d'``. Wavelengths outside :data:`BAND_M` get no weight (a
-vehicle's accelerometers do not measure a rail's 100-m waves, and the profile grid's shortest
-waves are the contact patch's). A threshold is set on clean tracks, for a number of false
-places per km; a defect is found when the largest ``z`` near it clears it.
+The test is the whitened matched filter of a bank of the simulator's weld shapes
+(:mod:`railwatch.scoring.dips`, whose ``z`` is N(0, 1) where there is no defect and the defect's
+detectability ``d'`` at one), run on the true height of both rails; wavelengths outside
+:data:`BAND_M` get no weight (a vehicle's accelerometers do not measure a rail's 100-m waves,
+and the profile grid's shortest waves are the contact patch's). A threshold is set on clean
+tracks, for a number of false places per km; a defect is found when the largest ``z`` near it
+clears it.
 
 Used by ``benchmarks/physics.py`` ("What the track allows"); the derivation and its checks:
 ``docs/physics.md``.
@@ -27,54 +25,29 @@ Used by ``benchmarks/physics.py`` ("What the track allows"); the derivation and 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import csd, find_peaks, welch
+from scipy.signal import find_peaks
 
 from railwatch.errors import RailwatchError
 from railwatch.physics.features import Item
+from railwatch.scoring.dips import (  # noqa: F401 - the bound's test, named here for its users
+    BAND_M,
+    DX_M,
+    RailSpectra,
+    rail_spectra,
+    whitened_scan,
+)
 
 FloatArray = NDArray[np.float64]
 
 #: The profile grid of the bound (m): the weld's shortest part, its crown, is 5-15 cm.
-BOUND_DX_M = 0.01
-#: Wavelengths (m) a vehicle's accelerometers can tell apart from the track at 10-30 m/s: 2 cm
-#: (0.5-1.5 kHz, the axle box's anti-alias band) to 20 m (0.5-1.5 Hz, the body's AC coupling).
-BAND_M = (0.02, 20.0)
+BOUND_DX_M = DX_M
 #: Welds of the bank: every length and crown share the simulator draws from (``features``).
 WELD_LENGTHS_M = (0.6, 0.8, 1.0, 1.2)
 WELD_CROWNS = (0.0, 0.25, 0.5)  # of the dip's depth
 WELD_CROWN_M = 0.1
-
-
-@dataclass(frozen=True)
-class RailSpectra:
-    """Both rails' auto- and cross-spectra at frequencies ``freq`` (cycles per m), in the units of
-    a DFT's expected power per sample (``E|X_k|² / N``): white noise of variance σ² is σ²."""
-
-    freq: FloatArray
-    s11: FloatArray
-    s22: FloatArray
-    s12: NDArray[np.complex128]  # E[X₁ X₂*] / N
-
-
-def rail_spectra(profiles: Sequence[FloatArray], dx: float = BOUND_DX_M,
-                 segment: int = 8192) -> RailSpectra:
-    """Welch estimates of the rails' spectra, averaged over ``profiles`` (each (2, n), m)."""
-    acc = []
-    for z in profiles:
-        if z.ndim != 2 or z.shape[0] != 2 or z.shape[1] < segment:
-            raise RailwatchError(f"a profile must be (2, n) with n >= {segment}, not {z.shape}")
-        f, s11 = welch(z[0], fs=1 / dx, nperseg=segment)
-        _, s22 = welch(z[1], fs=1 / dx, nperseg=segment)
-        _, s21 = csd(z[0], z[1], fs=1 / dx, nperseg=segment)  # scipy: E[X₁* X₂]
-        acc.append((s11, s22, np.conj(s21)))
-    s11, s22, s12 = (np.mean([a[i] for a in acc], axis=0) for i in range(3))
-    half = 1 / (2 * dx)  # one-sided density (per cycle/m) -> power per DFT bin and sample
-    return RailSpectra(np.asarray(f, dtype=float), np.asarray(s11.real * half),
-                       np.asarray(s22.real * half), np.asarray(s12 * half))
 
 
 def weld_templates(dx: float = BOUND_DX_M) -> list[FloatArray]:
@@ -86,41 +59,6 @@ def weld_templates(dx: float = BOUND_DX_M) -> list[FloatArray]:
             it = Item(0, "weld", 0.0, length, 1.0, 1, (("crown_mm", crown),
                                                         ("crown_m", WELD_CROWN_M)))
             out.append(it.height(np.arange(0.0, length + dx / 2, dx)))
-    return out
-
-
-def whitened_scan(z: FloatArray, spectra: RailSpectra, templates: Sequence[FloatArray],
-                  dx: float = BOUND_DX_M, band_m: tuple[float, float] = BAND_M,
-                  both_rails: bool = True) -> FloatArray:
-    """(2, n): on each rail, the largest whitened matched-filter ``z`` over ``templates``, for
-    the shape starting at each sample of ``z`` ((2, n) heights, m; module docstring).
-    ``both_rails`` False whitens each rail by its own spectrum alone. Edge effects: the DFT is
-    circular, so positions within the whitening filter's reach of an end are not valid."""
-    n = z.shape[1]
-    size = 1 << int(np.ceil(np.log2(n + max(len(t) for t in templates))))
-    x = np.fft.fft(z - z.mean(axis=1, keepdims=True), size, axis=1)
-    signed = np.fft.fftfreq(size, dx)
-    f = np.abs(signed)
-    s11 = np.interp(f, spectra.freq, spectra.s11)
-    s22 = np.interp(f, spectra.freq, spectra.s22)
-    s12 = np.interp(f, spectra.freq, spectra.s12.real) + 1j * np.interp(
-        f, spectra.freq, spectra.s12.imag)
-    s12 = np.where(signed < 0, np.conj(s12), s12)  # a real profile's spectrum is Hermitian
-    band = (f >= 1 / band_m[1]) & (f <= 1 / band_m[0])
-    if both_rails:
-        det = np.where(band, s11 * s22 - np.abs(s12) ** 2, 1.0)
-        whitened = [(s22 * x[0] - s12 * x[1]) / det, (s11 * x[1] - np.conj(s12) * x[0]) / det]
-        weight = [s22 / det, s11 / det]  # the diagonal of Σ⁻¹
-    else:
-        whitened = [x[0] / np.where(band, s11, 1.0), x[1] / np.where(band, s22, 1.0)]
-        weight = [1 / np.where(band, s11, 1.0), 1 / np.where(band, s22, 1.0)]
-    out = np.full((2, n), -np.inf)
-    for shape in templates:
-        w = np.fft.fft(shape, size)
-        for rail in range(2):
-            t = np.fft.ifft(np.conj(w) * whitened[rail] * band).real[:n]
-            var = float(np.sum(np.abs(w) ** 2 * weight[rail].real * band)) / size
-            np.maximum(out[rail], t / np.sqrt(var), out=out[rail])
     return out
 
 

@@ -270,17 +270,36 @@ def plot_detection(det: Detection, path: str | os.PathLike[str], title: str = ""
     return Path(path)
 
 
+def _draw_places(ax: Any, places: Sequence[Any], value: str, register: bool,
+                 weld_layer: bool) -> None:
+    """The reported places of one layer of a fused map at their ``value`` (red: unexplained,
+    grey: on an asset): the event layer's, or the weld layer's own (group ``rail height``)."""
+    mine = [loc for loc in places if (getattr(loc, "group", "") == "rail height") == weld_layer]
+    on = [loc for loc in mine if getattr(loc, "asset", "") not in ("", "unexplained")]
+    rest = [loc for loc in mine if loc not in on]
+    ax.plot([loc.position_m / 1000 for loc in rest], [getattr(loc, value) for loc in rest], "o",
+            mfc="none", color="tab:red", ms=6,
+            label="reported place, unexplained" if register else "reported place")
+    if on:
+        ax.plot([loc.position_m / 1000 for loc in on], [getattr(loc, value) for loc in on], "o",
+                mfc="none", color="0.45", ms=6, label="reported place on an asset")
+
+
 def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: Sequence[Any],
                      truth_m: NDArray[Any] | None = None, fused: Any = None,
                      level: float | None = None, assets: Sequence[Any] = ()) -> Figure:
     """The track with its places: with ``fused`` (a fused map) the evidence along the track
-    and the reporting ``level``, reported places as red dots; otherwise each place's share of
+    and the reporting ``level``, reported places as red dots (and, with a weld layer, the weld
+    test along the track below, with its own places); otherwise each place's share of
     the passes that covered it as a bar, reported ones red. With a register (``assets`` on the
     line, and places labelled by them), a reported place on an asset is grey and the assets
     are grey ticks. True defects, where known, as green ticks; the stretch each pass covered
     below."""
-    fig = Figure(figsize=(13, 4.2), layout="constrained")
-    ax, cov = fig.subplots(2, 1, sharex=True, height_ratios=[3, 1])
+    welds = getattr(fused, "welds", None) if fused is not None else None
+    fig = Figure(figsize=(13, 5.8 if welds is not None else 4.2), layout="constrained")
+    axes = fig.subplots(3 if welds is not None else 2, 1, sharex=True,
+                        height_ratios=[3, 2, 1] if welds is not None else [3, 1])
+    ax, cov = axes[0], axes[-1]
     shown = {id(loc) for loc in reported}
     if fused is not None:
         ax.plot(fused.grid / 1000, fused.evidence, lw=0.5, color="0.35",
@@ -288,15 +307,21 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
         if level is not None:
             ax.axhline(level, color="tab:red", lw=0.8, ls="--", label="reporting level")
         rep = [loc for loc in locations if id(loc) in shown]
-        on = [loc for loc in rep if getattr(loc, "asset", "") not in ("", "unexplained")]
-        rest = [loc for loc in rep if loc not in on]
-        ax.plot([loc.position_m / 1000 for loc in rest], [loc.evidence for loc in rest], "o",
-                mfc="none", color="tab:red", ms=6,
-                label="reported place, unexplained" if assets else "reported place")
-        if on:
-            ax.plot([loc.position_m / 1000 for loc in on], [loc.evidence for loc in on], "o",
-                    mfc="none", color="0.45", ms=6, label="reported place on an asset")
+        _draw_places(ax, rep, "evidence", bool(len(assets)), weld_layer=False)
         ax.set_ylabel("evidence (−log10 p)")
+        if welds is not None:
+            wax = axes[1]
+            wax.plot(welds.grid / 1000, welds.top, lw=0.5, color="0.35",
+                     label="weld test fused over the passes")
+            wax.axhline(welds.level(0.1), color="tab:red", lw=0.8, ls="--",
+                        label="its level: 0.1 places per km")
+            _draw_places(wax, rep, "weld_z", bool(len(assets)), weld_layer=True)
+            wax.set_ylabel("weld test (z)")
+            # Joints, steps and assets reach hundreds: the scale of the welds and the level.
+            own = [loc.weld_z for loc in rep if getattr(loc, "group", "") == "rail height"]
+            wax.set_ylim(0.0, max([4 * welds.level(0.1), *(1.3 * z for z in own)]))
+            wax.grid(alpha=0.3)
+            wax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
         bottom = -0.04 * max(float(np.nanmax(fused.evidence, initial=1.0)), 1.0)
     else:
         for loc in locations:

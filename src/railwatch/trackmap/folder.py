@@ -38,7 +38,7 @@ MAP_FIELDS = ("rank", "position_m", "start_m", "end_m", "evidence", "false_per_k
               "passes_seen", "passes_with_event", "passes_covered", "share", "confidence",
               "median_score", "channel", "group", "kind_guess", "first_seen", "last_seen",
               "asset", "asset_kind", "growth", "growth_low", "growth_high", "trend_p",
-              "growing")
+              "growing", "weld_z")
 COMBINED = "events.csv"  # every recording's events, a ``recording`` column first
 #: The arrays of ``NAME.profile.npz``: each sample's time (s), recorded position (m, NaN
 #: without one) and score per channel (n, C), and the channels' names and sensor groups.
@@ -46,6 +46,10 @@ PROFILE_ARRAYS = ("time_s", "position_m", "channel_score", "channels", "groups")
 #: ... and, where the recording carried GNSS fixes, its route: (k, 3) time (s, as time_s),
 #: latitude and longitude (degrees, WGS 84), at 10 Hz (readers.recording_route).
 ROUTE_ARRAY = "route"
+#: ... and, where the model knows its axle boxes' response, the weld test along the track
+#: (recordings.rails.weld_evidence): every 5 cm travelled, the recorded position (m) and the
+#: highest ``z`` of the rail under each axle box of the layout's axle group, in its order (k, 2).
+WELD_ARRAYS = ("weld_position_m", "weld_z")
 #: The keys of ``NAME.scan.json``: what was scanned, by which model, how, and the stretch of
 #: track it covered (recorded positions of its first and last sample).
 SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
@@ -63,6 +67,8 @@ class ScoreProfile:
     groups: tuple[str, ...]
     time_s: NDArray[np.float64] | None = None  # (n,) each sample's time in its recording, s
     route: NDArray[np.float64] | None = None  # (k, 3) time, latitude, longitude (None: no GNSS)
+    weld_position: NDArray[np.float64] | None = None  # (k,) recorded positions of the weld
+    weld_z: NDArray[np.float32] | None = None  # test, and its z per axle box (k, 2) (None: none)
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
@@ -132,6 +138,7 @@ class Location:
     growth_high: float = math.nan
     trend_p: float = math.nan  # the chance of a trend this strong in passes in random order,
     growing: str = ""  # and "yes" below trends.GROWING_P ("no"; "": no trend)
+    weld_z: float = math.nan  # the map's weld layer there (trackmap.welds; NaN: no weld test)
 
 
 def started_time(text: str) -> Any:
@@ -197,15 +204,20 @@ def _read_pass(info_path: Path) -> PassEvents:
 
 def profile_arrays(time_s: NDArray[np.float64], position_m: NDArray[np.float64],
                    channel_score: NDArray[np.float32], channels: tuple[str, ...],
-                   groups: tuple[str, ...], route: NDArray[np.float64] | None = None
+                   groups: tuple[str, ...], route: NDArray[np.float64] | None = None,
+                   weld: tuple[NDArray[Any], NDArray[Any]] | None = None
                    ) -> dict[str, NDArray[Any]]:
     """``NAME.profile.npz``'s arrays by their names (:data:`PROFILE_ARRAYS`, and
-    :data:`ROUTE_ARRAY` where there is a route)."""
+    :data:`ROUTE_ARRAY` where there is a route, :data:`WELD_ARRAYS` where there is a weld
+    test)."""
     values = (np.asarray(time_s, dtype=float), np.asarray(position_m, dtype=float),
               np.asarray(channel_score, dtype=np.float32), np.array(channels), np.array(groups))
     arrays = dict(zip(PROFILE_ARRAYS, values, strict=True))
     if route is not None:
         arrays[ROUTE_ARRAY] = np.asarray(route, dtype=float).reshape(-1, 3)
+    if weld is not None:
+        arrays[WELD_ARRAYS[0]] = np.asarray(weld[0], dtype=float)
+        arrays[WELD_ARRAYS[1]] = np.asarray(weld[1], dtype=np.float32).reshape(-1, 2)
     return arrays
 
 
@@ -224,16 +236,25 @@ def _read_profile(path: Path) -> ScoreProfile | None:
         with np.load(path, allow_pickle=False) as f:
             time_s, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
             route = f[ROUTE_ARRAY] if ROUTE_ARRAY in f.files else None
+            weld = [f[k] for k in WELD_ARRAYS] if WELD_ARRAYS[1] in f.files else None
             profile = ScoreProfile(position=np.asarray(position, dtype=float),
                                    time_s=np.asarray(time_s, dtype=float),
                                    channel_score=np.asarray(score, np.float32),
                                    channels=tuple(str(c) for c in channels),
                                    groups=tuple(str(g) for g in groups),
                                    route=None if route is None
-                                   else np.asarray(route, dtype=float).reshape(-1, 3))
+                                   else np.asarray(route, dtype=float).reshape(-1, 3),
+                                   weld_position=None if weld is None
+                                   else np.asarray(weld[0], dtype=float),
+                                   weld_z=None if weld is None
+                                   else np.asarray(weld[1], np.float32).reshape(-1, 2))
     except (OSError, ValueError, KeyError) as e:
         raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
                              "scan again") from None
+    if profile.weld_z is not None and profile.weld_position is not None and \
+            len(profile.weld_z) != len(profile.weld_position):
+        raise RailwatchError(f"{path} is damaged (its weld test does not match its positions): "
+                             "remove it and its .scan.json, then scan again")
     if profile.channel_score.shape != (len(profile.position), len(profile.channels)):
         raise RailwatchError(f"{path} is damaged (its scores do not match its positions and "
                              "channels): remove it and its .scan.json, then scan again")

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -89,6 +90,7 @@ class Fused:
     # their map positions (set by the track map)
     pass_score: list[NDArray[np.float64]] = field(default_factory=list)  # and their scores
     # (the highest sensor group's)
+    welds: Any = None  # the map's weld layer (trackmap.welds.WeldLayer), set by the track map
 
     def false_per_km(self, evidence: NDArray[np.float64] | float) -> NDArray[np.float64]:
         """Expected places per km at least this strong among passes without a repeating

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from railwatch.errors import RailwatchError
-from railwatch.trackmap import fusion
+from railwatch.trackmap import fusion, welds
 from railwatch.trackmap.align import align, refine_by_profiles, verify_moves
 from railwatch.trackmap.folder import Location, PassEvents, ScoreProfile, started_time
 
@@ -252,7 +252,50 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
             passes_with_event=evented))
     found.sort(key=lambda r: (-r["evidence"], -r["passes_seen"], -r["median_score"],
                               r["position_m"]))
+    fused.welds = welds.weld_layer(profiles, transforms, fused.grid,
+                                   [rule == "swap" and not runs_up(x) for x in xs],
+                                   [(r["start_m"], r["end_m"]) for r in found])
+    if fused.welds is not None:
+        found = _with_welds(found, fused.welds, list_per_km, tolerance_m, passes, events_at,
+                            xs, point)
     return [Location(rank=i + 1, **r) for i, r in enumerate(found)], fused
+
+
+def _with_welds(found: list[dict[str, Any]], layer: welds.WeldLayer, list_per_km: float,
+                tolerance_m: float, passes: list[PassEvents],
+                events_at: list[NDArray[np.float64]], xs: list[NDArray[np.float64]],
+                point: list[NDArray[np.float64]]) -> list[dict[str, Any]]:
+    """The event layer's places (``found``) with the weld layer's ``z`` over each, then the
+    weld layer's own places that none of them holds, strongest first (:mod:`welds`)."""
+    top = np.nan_to_num(layer.top, nan=-np.inf)
+    for r in found:
+        near = (layer.grid >= r["start_m"] - fusion.SLACK_M) & \
+            (layer.grid <= r["end_m"] + fusion.SLACK_M)
+        r["weld_z"] = float(top[near].max()) if near.any() and np.isfinite(
+            top[near].max()) else math.nan
+    for place in welds.weld_places(layer, list_per_km, welds.SEEN_PER_KM, tolerance_m):
+        if any(r["start_m"] - tolerance_m <= place.position_m <= r["end_m"] + tolerance_m
+               for r in found):
+            continue
+        lo, hi = place.start_m - fusion.SLACK_M, place.end_m + fusion.SLACK_M
+        covering = [i for i, x in enumerate(xs) if np.any((x >= lo) & (x <= hi))]
+        best = [float(np.max(point[i][(xs[i] >= lo) & (xs[i] <= hi)])) for i in covering]
+        seen = [passes[i].name for i in place.seen_by]
+        found.append(dict(
+            position_m=place.position_m, start_m=place.start_m, end_m=place.end_m,
+            evidence=-math.log10(max(place.false_per_km * welds.BLOCK_M / 1000.0, 1e-300)),
+            false_per_km=place.false_per_km, passes_seen=len(seen),
+            passes_covered=place.passes_covered,
+            share=len(seen) / place.passes_covered if place.passes_covered else 0.0,
+            confidence=wilson_lower(len(seen), place.passes_covered),
+            median_score=float(np.median(best)) if best else math.nan,
+            channel=place.channel, group="rail height", kind_guess="weld-like",
+            first_seen=seen[0] if seen else "", last_seen=seen[-1] if seen else "",
+            passes_with_event=sum(bool(np.any((events_at[i] >= lo - tolerance_m)
+                                              & (events_at[i] <= hi + tolerance_m)))
+                                  for i in covering),
+            weld_z=place.z))
+    return found
 
 
 def _channel_at(profile: ScoreProfile, x: NDArray[np.float64], lo: float, hi: float,

@@ -7,7 +7,10 @@ track map fuses across passes) and then ``NAME.scan.json`` (the recording, the m
 stretch of track it covered, when it was scanned and when it was recorded: ``started``, from
 the layout's ``timestamp`` column or a ``--dates`` table): written last, it marks the recording
 done. Where the layout names ``latitude`` and ``longitude`` columns, the profile also keeps the
-recording's route (its GNSS fixes at 10 Hz): what puts the map's places on the earth.
+recording's route (its GNSS fixes at 10 Hz): what puts the map's places on the earth. A model
+that knows its axle boxes' response (``train`` identifies it at field scale) also keeps each
+recording's weld test along the track (:mod:`railwatch.detection.welds`): what the map's weld
+layer fuses.
 ``events.csv`` combines them all with a ``recording`` column. Only the driver writes; a
 Ray task reads its recording and returns its events and profile.
 """
@@ -28,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from railwatch.atomic import atomic_path, atomic_savez, sha256_file
-from railwatch.detection import pipeline
+from railwatch.detection import pipeline, welds
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
@@ -213,8 +216,11 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
         scale=rm.layout.scale,  # the model's: track-map's --min-events follows it
         gnss=bool(lay.latitude and lay.longitude),
     )
+    weld = None
+    if rm.response is not None:  # the weld test (recordings.rails): its own arrays
+        weld = welds.weld_evidence(*welds.axle_motion(rec), rm.response)
     arrays = profile_arrays(*profile.columns(), lay.channels, lay.groups,
-                            route=recording_route(path, lay))
+                            route=recording_route(path, lay), weld=weld)
     return pipeline.events_text(result.events, "csv"), arrays, info
 
 
