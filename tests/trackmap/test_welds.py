@@ -3,6 +3,7 @@ rails of a vehicle turned at the ends, and its places in the map beside the even
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,31 @@ def test_a_weld_on_every_pass_is_a_place_and_one_pass_alone_is_not(tmp_path: Pat
     # The weld layer reports the weld alone: no place of the texture.
     only = [p.position_m for p in made.reported if p.group == "rail height"]
     assert len(only) == 1 and only[0] == pytest.approx(2600.0, abs=2.0)
+
+
+def test_a_weld_on_a_weak_event_place_reports_it(tmp_path: Path) -> None:
+    """An event-layer place listed but not reported (its evidence below the level) is reported
+    when the weld layer finds a weld on it: either layer's report counts."""
+    defects = np.array([500.0, 3300.0])
+    xs, scores = profiles(6, defects, bump=4.0, seed=3)
+    rng = np.random.default_rng(7)
+    for x, s in zip(xs, scores, strict=True):  # a weak rise at 4400 m on every pass
+        near = np.abs(x - 4400.0) <= 0.4
+        s[near] += 0.8 + 0.8 * rng.exponential(size=near.sum())
+    tests = weld_tests(6, texture={4400.0: 9.0}, once={})
+    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        write_pass(tmp_path, f"pass{i:02d}", x, x / 20.0, np.stack([s, 0.5 * s], axis=1),
+                   ("axle_left", "axle_right"), ("axle", "axle"),
+                   np.array([500.0, 3300.0, 4400.0]), weld=tests[i])
+    passes = tm.read_scan(tmp_path)
+    events_only = make_map([replace(p, profile=replace(p.profile, weld_z=None))
+                            for p in passes if p.profile is not None], sides="keep")
+    weak = [p for p in events_only.places if abs(p.position_m - 4400.0) < 3.0]
+    assert weak and weak[0].false_per_km > 0.1  # listed, not reported, without the weld test
+    made = make_map(passes, sides="keep")
+    place = [p for p in made.reported if abs(p.position_m - 4400.0) < 3.0]
+    assert len(place) == 1 and place[0].group == "axle" and place[0].false_per_km < 1e-6
+    assert place[0].weld_z == pytest.approx(9.0, abs=1.0)
 
 
 def test_a_vehicle_turned_at_the_ends_puts_each_axle_box_on_its_rail(tmp_path: Path) -> None:

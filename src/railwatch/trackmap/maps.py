@@ -265,8 +265,9 @@ def _with_welds(found: list[dict[str, Any]], layer: welds.WeldLayer, list_per_km
                 tolerance_m: float, passes: list[PassEvents],
                 events_at: list[NDArray[np.float64]], xs: list[NDArray[np.float64]],
                 point: list[NDArray[np.float64]]) -> list[dict[str, Any]]:
-    """The event layer's places (``found``) with the weld layer's ``z`` over each, then the
-    weld layer's own places that none of them holds, strongest first (:mod:`welds`)."""
+    """The event layer's places (``found``) with the weld layer's ``z`` over each (and its
+    chance, where a weld place lies on one and is the rarer), then the weld layer's own places
+    that none of them holds, strongest first (:mod:`welds`)."""
     top = np.nan_to_num(layer.top, nan=-np.inf)
     for r in found:
         near = (layer.grid >= r["start_m"] - fusion.SLACK_M) & \
@@ -274,8 +275,11 @@ def _with_welds(found: list[dict[str, Any]], layer: welds.WeldLayer, list_per_km
         r["weld_z"] = float(top[near].max()) if near.any() and np.isfinite(
             top[near].max()) else math.nan
     for place in welds.weld_places(layer, list_per_km, welds.SEEN_PER_KM, tolerance_m):
-        if any(r["start_m"] - tolerance_m <= place.position_m <= r["end_m"] + tolerance_m
-               for r in found):
+        holding = [r for r in found
+                   if r["start_m"] - tolerance_m <= place.position_m <= r["end_m"] + tolerance_m]
+        if holding:  # a place either layer reports is reported: its rarer chance counts
+            for r in holding:
+                r["false_per_km"] = min(r["false_per_km"], place.false_per_km)
             continue
         lo, hi = place.start_m - fusion.SLACK_M, place.end_m + fusion.SLACK_M
         covering = [i for i, x in enumerate(xs) if np.any((x >= lo) & (x <= hi))]
