@@ -58,6 +58,14 @@ def report(tmp_path_factory):  # type: ignore[no-untyped-def]
         scores.append(s)
     (tmp / "scan").mkdir()
     scan_folder(tmp / "scan", xs, scores, DEFECTS, located=True)
+    for j in range(8):  # each pass's weld test: the texture, and a weld at 2.6 km
+        profile = tmp / "scan" / f"pass{j:02d}.profile.npz"
+        with np.load(profile) as f:
+            arrays = dict(f)
+        x = np.arange(0, 5_000.0, 0.05) + rng.uniform(0, 0.05)
+        z = rng.normal(0, 1, (len(x), 2)) + 2.0
+        z[np.abs(x - 2600.0) < 0.3, 0] = 9.0
+        np.savez(profile, **arrays, weld_position_m=x, weld_z=z.astype(np.float32))
     for j in range(8):
         info_path = tmp / "scan" / f"pass{j:02d}.scan.json"
         info = json.loads(info_path.read_text())
@@ -102,23 +110,28 @@ def test_it_renders_offline_and_a_click_shows_a_place_history(report: Path) -> N
                 return page.evaluate(f"() => Bokeh.documents[0].get_model_by_name('{name}')"
                                      f"{expr}")
 
+            # The weld layer along the track, with the weld at 2.6 km a place of its own.
+            assert model("welds", ".title.text").startswith("weld test")
+            assert 2.6 in [round(km, 1) for km, z in zip(
+                model("places", ".data_source.data.km"),  # type: ignore[call-overload]
+                model("places", ".data_source.data.weld_z"), strict=True) if z and z > 8]
             # The register's four switches are drawn on the line.
             assert model("assets", ".data_source.data.id.length") == 4
             # It opens on the work list's first place: the defect that grows, with 8 passes.
             assert "#1 place at km 1.80" in str(model("heading", ".text"))
             assert model("history", ".renderers[0].data_source.data.x.length") == 8
-            # A click on the line's second place (the unexplained one at 4.4 km) shows its own.
+            # A click on the line's unexplained place at 4.4 km shows its own.
             x, y = page.evaluate(f"""() => {{
               const view = ({VIEW_JS})('line');
               const src = Bokeh.documents[0].get_model_by_name('places').data_source;
-              const i = src.data.priority.indexOf(2);
+              const i = src.data.km.findIndex((k) => Math.abs(k - 4.4) < 0.01);
               const r = view.canvas_view.el.getBoundingClientRect();
               return [r.left + view.frame.x_scale.compute(src.data.x[i]),
                       r.top + view.frame.y_scale.compute(src.data.y[i])];
             }}""")
             page.mouse.click(x, y)
             page.wait_for_function("() => Bokeh.documents[0].get_model_by_name('heading')"
-                                   ".text.includes('#2 ')", timeout=5_000)
+                                   ".text.includes('place at km 4.40')", timeout=5_000)
             strengths = model("history", ".renderers[0].data_source.data.strength")
             assert isinstance(strengths, list) and len(strengths) == 8
             assert max(strengths) < 2 * min(strengths)  # a stable place

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.detectors import registry
+from railwatch.trackmap.welds import GROUP as WELD_GROUP
 from railwatch.windows import KIND_NAMES, WindowSet
 
 if TYPE_CHECKING:
@@ -274,7 +275,7 @@ def _draw_places(ax: Any, places: Sequence[Any], value: str, register: bool,
                  weld_layer: bool) -> None:
     """The reported places of one layer of a fused map at their ``value`` (red: unexplained,
     grey: on an asset): the event layer's, or the weld layer's own (group ``rail height``)."""
-    mine = [loc for loc in places if (getattr(loc, "group", "") == "rail height") == weld_layer]
+    mine = [loc for loc in places if (getattr(loc, "group", "") == WELD_GROUP) == weld_layer]
     on = [loc for loc in mine if getattr(loc, "asset", "") not in ("", "unexplained")]
     rest = [loc for loc in mine if loc not in on]
     ax.plot([loc.position_m / 1000 for loc in rest], [getattr(loc, value) for loc in rest], "o",
@@ -318,7 +319,7 @@ def track_map_figure(locations: Sequence[Any], passes: Sequence[Any], reported: 
             _draw_places(wax, rep, "weld_z", bool(len(assets)), weld_layer=True)
             wax.set_ylabel("weld test (z)")
             # Joints, steps and assets reach hundreds: the scale of the welds and the level.
-            own = [loc.weld_z for loc in rep if getattr(loc, "group", "") == "rail height"]
+            own = [loc.weld_z for loc in rep if getattr(loc, "group", "") == WELD_GROUP]
             wax.set_ylim(0.0, max([4 * welds.level(0.1), *(1.3 * z for z in own)]))
             wax.grid(alpha=0.3)
             wax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)

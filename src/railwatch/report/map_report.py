@@ -85,7 +85,9 @@ def report_map(path: str | os.PathLike[str], made: TrackMap, done: Plan,
                         geo.of([r["rank"] for r in rows]), geo.line,
                         tm.covered_range(passes), history,
                         (made.fused.grid, made.fused.evidence) if made.fused is not None
-                        else None, made.level, assets)
+                        else None, made.level, assets,
+                        (made.fused.welds.grid, made.fused.welds.top, made.fused.welds.level(0.1))
+                        if made.fused is not None and made.fused.welds is not None else None)
 
 
 def write_report(path: str | os.PathLike[str], title: str, summary: str,
@@ -94,14 +96,18 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                  line: NDArray[np.float64], covered: tuple[float, float],
                  history: list[dict[str, Any]], evidence: tuple[NDArray[np.float64],
                                                                 NDArray[np.float64]] | None,
-                 level: float | None, assets: Sequence[dict[str, Any]] = ()) -> Path:
+                 level: float | None, assets: Sequence[dict[str, Any]] = (),
+                 welds: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None
+                 ) -> Path:
     """Write the report (module docstring). ``places``: every reported place's fields, work
     list first (:func:`railwatch.trackmap.geo.features`); ``where``: their latitude and
     longitude (NaN: unknown); ``line``: (k, 2) latitude, longitude (empty: no GNSS);
     ``covered``: the stretch mapped (m); ``history``: each place's strength per pass
     (:func:`railwatch.trackmap.trends.history`); ``evidence``: the fused evidence along the
     map (positions m, values) and the reporting ``level``, None for a votes map; ``assets``:
-    the register's assets on the line (id, kind, km, lat, lon), drawn as grey squares."""
+    the register's assets on the line (id, kind, km, lat, lon), drawn as grey squares;
+    ``welds``: the map's weld layer (positions m, fused z, its level at 0.1 places per km),
+    None without one."""
     from bokeh.embed import file_html
     from bokeh.layouts import column, row
     from bokeh.models import (
@@ -140,6 +146,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         "colour": [COLOURS.get(p["status"], "#1f77b4") for p in places],
         "what": [f"{p['asset_kind']} {p['asset']}" if p["asset_kind"] else "" for p in places],
         "evidence": [p["evidence"] if p["evidence"] is not None else math.nan for p in places],
+        "weld_z": [p["weld_z"] if p["weld_z"] is not None else math.nan for p in places],
         "growth": [p["growth"] if p["growth"] is not None else math.nan for p in places],
         "interval": [f"{p['growth_low']:.2f}-{p['growth_high']:.2f}"
                      if p["growth_low"] is not None and p["growth_high"] is not None else ""
@@ -162,6 +169,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         source.selected.indices = [first]
 
     tips = [("", "@label"), ("status", "@status"), ("evidence", "@evidence{0.0}"),
+            ("weld test", "z = @weld_z{0.0}"),
             ("growth", "x@growth{0.00} (@interval)"), ("seen on", "@seen passes"),
             ("why", "@why")]
     plan = figure(title="the line, from the passes' GNSS fixes (m east and north)" if on_earth
@@ -223,6 +231,23 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                               nonselection_fill_alpha=0.7, nonselection_line_alpha=0.7)
         along.add_tools(TapTool(renderers=[marks]), HoverTool(renderers=[marks], tooltips=tips))
         parts.append(along)
+    if welds is not None:
+        wx, wy = _peaks(np.asarray(welds[0], float) / 1e3,
+                        np.nan_to_num(np.asarray(welds[1], float), nan=0.0), EVIDENCE_POINTS)
+        shared = {"x_range": parts[-1].x_range} if parts else {}
+        dips = figure(title="weld test fused over the passes (the rails' height, measured by "
+                            "the axle boxes)", width=1300, height=200, x_axis_label="track km",
+                      y_axis_label="z", tools="xpan,xwheel_zoom,reset,save", name="welds",
+                      y_range=(0.0, 4 * welds[2]), **shared)
+        dips.line(wx, wy, color="#555555", line_width=1)
+        dips.add_layout(Span(location=welds[2], dimension="width", line_color="#d62728",
+                             line_dash="dashed"))
+        weld_marks = dips.scatter("km", "weld_z", source=source, size=9, fill_color="colour",
+                                  line_color="black", selection_line_width=3,
+                                  nonselection_fill_alpha=0.7, nonselection_line_alpha=0.7)
+        dips.add_tools(TapTool(renderers=[weld_marks]),
+                       HoverTool(renderers=[weld_marks], tooltips=tips))
+        parts.append(dips)
 
     number = NumberFormatter(format="0.0")
     table = DataTable(source=source, name="worklist", width=1300, height=320,
@@ -235,6 +260,8 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                                       formatter=NumberFormatter(format="0.000"), width=70),
                           TableColumn(field="evidence", title="evidence", formatter=number,
                                       width=70),
+                          TableColumn(field="weld_z", title="weld z", formatter=number,
+                                      width=60),
                           TableColumn(field="growth", title="growth ×",
                                       formatter=NumberFormatter(format="0.00"), width=70),
                           TableColumn(field="interval", title="95 %", width=80),

@@ -150,7 +150,8 @@ def properties(place: Location, priority: int | None, status: str, why: str
             "asset": place.asset, "asset_kind": place.asset_kind,
             "growth": _value(place.growth), "growth_low": _value(place.growth_low),
             "growth_high": _value(place.growth_high), "trend_p": _value(place.trend_p),
-            "growing": place.growing, "channel": place.channel,
+            "growing": place.growing, "channel": place.channel, "group": place.group,
+            "kind_guess": place.kind_guess, "weld_z": _value(place.weld_z),
             "first_seen": place.first_seen, "last_seen": place.last_seen}
 
 

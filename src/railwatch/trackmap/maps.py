@@ -293,7 +293,7 @@ def _with_welds(found: list[dict[str, Any]], layer: welds.WeldLayer, list_per_km
             share=len(seen) / place.passes_covered if place.passes_covered else 0.0,
             confidence=wilson_lower(len(seen), place.passes_covered),
             median_score=float(np.median(best)) if best else math.nan,
-            channel=place.channel, group="rail height", kind_guess="weld-like",
+            channel=place.channel, group=welds.GROUP, kind_guess="weld-like",
             first_seen=seen[0] if seen else "", last_seen=seen[-1] if seen else "",
             passes_with_event=sum(bool(np.any((events_at[i] >= lo - tolerance_m)
                                               & (events_at[i] <= hi + tolerance_m)))

@@ -38,6 +38,8 @@ from railwatch.trackmap.folder import ScoreProfile
 
 FloatArray = NDArray[np.float64]
 
+#: The group of the weld layer's own places in the map.
+GROUP = "rail height"
 #: The stretches whose highest fused ``z`` the level is fitted to (m), and the quantiles fitted.
 BLOCK_M = 10.0
 FIT_QUANTILES = (0.10, 0.50)

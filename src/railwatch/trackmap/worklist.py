@@ -29,6 +29,7 @@ from railwatch.trackmap.folder import Location, PassEvents, write_map
 from railwatch.trackmap.learned import Proposed
 from railwatch.trackmap.maps import TrackMap
 from railwatch.trackmap.trends import Dated, with_trends, write_passes
+from railwatch.trackmap.welds import GROUP as WELD_GROUP
 
 #: Columns of ``MAP.worklist.csv``.
 FIELDS = ("priority", "tier", "position_m", "what", "why", "evidence", "growth",
@@ -62,7 +63,9 @@ def worklist(reported: list[Location], responses: list[Response] = ()) -> list[I
         grows = p.growing == "yes"
         growth = (f"grows x{p.growth:.2f} ({p.growth_low:.2f}-{p.growth_high:.2f}) over the "
                   f"passes, p = {p.trend_p:.3g}") if grows else ""
-        seen = f"seen on {p.passes_seen} of {p.passes_covered} passes, evidence {p.evidence:.1f}"
+        seen = (f"a dip in the rails' height, weld test z = {p.weld_z:.1f} over "
+                f"{p.passes_covered} passes" if p.group == WELD_GROUP else
+                f"seen on {p.passes_seen} of {p.passes_covered} passes, evidence {p.evidence:.1f}")
         if p.asset in ("", UNEXPLAINED):
             items.append(Item(1 if grows else 2, p, "; ".join(filter(None, [growth, seen]))))
         elif grows or p.asset in abnormal:
