@@ -16,8 +16,9 @@ shifted at random are no null for it, and its null is its own distribution along
 3. **The level**: the highest fused ``z`` of each :data:`BLOCK_M` stretch of the line follows
    a Gumbel law where there is no dip; fitted to its :data:`FIT_QUANTILES` (the line's defects
    and assets fill the top of the distribution, not its lower half), it gives the places per km
-   that the texture reaches at any ``z``: measured on the development physics tracks' clean
-   twins, 5.4 at 0.1 places per km against 5.2 counted (docs/physics.md).
+   that the texture reaches at any ``z``: on the development physics tracks' clean twins the
+   fit gives 5.3 at 0.1 places per km, 5.2 counted
+   (docs/notes/2026-12-05-welds-from-the-rails-height.md).
 4. **Places**: the stretches above the level of ``list_per_km``; a place the event layer
    already has (within its tolerance) takes the weld test's ``z`` as ``weld_z``, another one
    becomes a place of its own.
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,7 +94,7 @@ def gumbel_fit(block_maxima: FloatArray) -> tuple[float, float]:
 
 def weld_layer(profiles: list[ScoreProfile], transforms: list[tuple[float, float]],
                grid: FloatArray, mirrored: list[bool],
-               known: list[tuple[float, float]] = ()) -> WeldLayer | None:  # type: ignore[assignment]
+               known: Sequence[tuple[float, float]] = ()) -> WeldLayer | None:
     """The fused weld test (module docstring) of the passes whose profiles carry one, laid on
     the map's ``grid`` by each pass's ``transforms`` (``a + b · recorded position``);
     ``mirrored[i]``: pass i's axle boxes swap rails. The null is fitted away from the
