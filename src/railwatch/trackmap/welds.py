@@ -19,9 +19,14 @@ shifted at random are no null for it, and its null is its own distribution along
    that the texture reaches at any ``z``: on the development physics tracks' clean twins the
    fit gives 5.3 at 0.1 places per km, 5.2 counted
    (docs/notes/2026-12-05-welds-from-the-rails-height.md).
-4. **Places**: the stretches above the level of ``list_per_km``; a place the event layer
-   already has (within its tolerance) takes the weld test's ``z`` as ``weld_z``, another one
-   becomes a place of its own.
+4. **Places**: the stretches above the level of ``list_per_km``, less the **sidelobes**: the
+   whitened test rings beside a strong dip (a step, a crossing nose, a bridge's end: z of
+   50-300), at about 6 m and, by a bridge's stiff deck, 10-27 m, at z 5-7; a stretch whose
+   peak has a five times stronger one within 25 m is left out (on the development tracks every
+   such stretch lay on the stronger item's feature or defect, and every weld of 0.3 mm or more
+   was 40 m or more from a stronger stretch). A place the event layer already has (within its
+   tolerance) takes the weld test's ``z`` as ``weld_z``, another one becomes a place of its
+   own.
 """
 
 from __future__ import annotations
@@ -48,6 +53,10 @@ FIT_QUANTILES = (0.10, 0.50)
 #: The null leaves out this much (m) around each of the event layer's places: a defect or an
 #: asset raises the weld test over tens of metres (a bridge's end over a hundred).
 KNOWN_M = 30.0
+#: A stretch whose peak is under 1/SIDELOBE_RATIO of another's within SIDELOBE_M (m) is that
+#: one's sidelobe, not a place (module docstring, step 4).
+SIDELOBE_M = 25.0
+SIDELOBE_RATIO = 5.0
 #: A pass "saw" a weld place where its own z reached the level of this many places per km.
 SEEN_PER_KM = 0.1
 
@@ -163,10 +172,13 @@ def weld_places(layer: WeldLayer, list_per_km: float, seen_per_km: float,
     step = float(layer.grid[1] - layer.grid[0])
     gap = max(1, int(round(tolerance_m / step)))
     seen_level = layer.level(seen_per_km)
+    runs = fusion.runs_above(np.nan_to_num(top, nan=-np.inf), layer.level(list_per_km), gap)
+    peaks = np.array([int(run[np.argmax(top[run])]) for run in runs], dtype=np.int64)
     out = []
-    for run in fusion.runs_above(np.nan_to_num(top, nan=-np.inf), layer.level(list_per_km),
-                                 gap):
-        peak = int(run[np.argmax(top[run])])
+    for run, peak in zip(runs, peaks, strict=True):
+        near = np.abs(layer.grid[peaks] - layer.grid[peak]) <= SIDELOBE_M
+        if np.any(top[peaks[near]] >= SIDELOBE_RATIO * top[peak]):
+            continue  # the whitened test's sidelobe of a much stronger dip (module docstring)
         lo, hi = int(run[0]), int(run[-1]) + 1
         own = np.nanmax(np.where(np.isnan(layer.per_pass[:, lo:hi]), -np.inf,
                                  layer.per_pass[:, lo:hi]), axis=1)
