@@ -97,6 +97,20 @@ def test_a_weld_on_a_weak_event_place_reports_it(tmp_path: Path) -> None:
     assert place[0].weld_z == pytest.approx(9.0, abs=1.0)
 
 
+def test_a_strong_dips_sidelobe_is_no_place_and_a_weld_beyond_it_is(tmp_path: Path) -> None:
+    """A step (z 80 on every pass) rings at z 6.5 six metres on; 45 m on, a weld (z 8)."""
+    defects = np.array([500.0, 3300.0])
+    xs, scores = profiles(6, defects, bump=4.0, seed=3)
+    tests = weld_tests(6, texture={1500.0: 80.0, 1506.0: 6.5, 1545.0: 8.0}, once={})
+    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        write_pass(tmp_path, f"pass{i:02d}", x, x / 20.0, np.stack([s, 0.5 * s], axis=1),
+                   ("axle_left", "axle_right"), ("axle", "axle"), defects, weld=tests[i])
+    made = make_map(tm.read_scan(tmp_path), sides="keep")
+    at = sorted(p.position_m for p in made.reported if p.group == "rail height")
+    assert at == pytest.approx([1500.0, 1545.0], abs=2.0)  # the step (no event there) and the
+    # weld; not the sidelobe
+
+
 def test_a_vehicle_turned_at_the_ends_puts_each_axle_box_on_its_rail(tmp_path: Path) -> None:
     """Passes down the map have their axle boxes on the other rails (sides: swap): the weld is
     on one rail of the track, seen by axle_left up the map and by axle_right down it."""
