@@ -142,3 +142,55 @@ def test_without_a_weld_test_the_map_is_as_before(tmp_path: Path) -> None:
     made = make_map(tm.read_scan(tmp_path))
     assert made.fused is not None and made.fused.welds is None
     assert all(np.isnan(p.weld_z) and p.group == "axle" for p in made.places)
+
+
+def test_a_stretch_whose_texture_spreads_wider_on_every_pass_is_judged_against_itself(
+        tmp_path: Path) -> None:
+    """Where every pass's weld test spreads five times wider about its median over 300 m (a
+    stretch run at another speed than the pass's spectra say), its peaks are no places; a weld on quiet track
+    still is, at its z. Without the stretch's own spread (SPREAD_M = 0) they are places."""
+    defects = np.array([500.0, 3300.0])
+    xs, scores = profiles(6, defects, bump=4.0, seed=3)
+    tests = weld_tests(6, texture={2600.0: 9.0}, once={})
+    for i, (x, s) in enumerate(zip(xs, scores, strict=True)):
+        x_w, z = tests[i]
+        wide = (x_w > 1000.0) & (x_w < 1300.0)
+        middle = np.median(z, axis=0)
+        z[wide] = middle + 5.0 * (z[wide] - middle)
+        write_pass(tmp_path, f"pass{i:02d}", x, x / 20.0, np.stack([s, 0.5 * s], axis=1),
+                   ("axle_left", "axle_right"), ("axle", "axle"), defects, weld=(x_w, z))
+    made = make_map(tm.read_scan(tmp_path), sides="keep")
+    only = [p.position_m for p in made.reported if p.group == "rail height"]
+    assert len(only) == 1 and only[0] == pytest.approx(2600.0, abs=2.0)
+    assert made.fused is not None and made.fused.welds is not None
+    weld = next(p for p in made.reported if p.group == "rail height")
+    assert weld.weld_z == pytest.approx(9.0, abs=1.0)
+
+    welds.SPREAD_M, kept = 0.0, welds.SPREAD_M
+    try:
+        blind = make_map(tm.read_scan(tmp_path), sides="keep")
+    finally:
+        welds.SPREAD_M = kept
+    assert any(1000.0 < p.position_m < 1300.0 for p in blind.reported
+               if p.group == "rail height")
+
+
+def test_deflated_leaves_an_even_pass_alone_and_divides_a_wide_stretch() -> None:
+    rng = np.random.default_rng(1)
+    x = np.arange(0.0, 2000.0, 0.05)
+    z = rng.normal(0, 1, len(x)) + 1.5
+    z[len(x) // 2] = 12.0  # a weld: one peak does not move its stretch's quartiles
+    assert np.array_equal(welds.deflated(z, x)[np.abs(x - 1000.0) < 0.1],
+                          z[np.abs(x - 1000.0) < 0.1])
+    wide = z.copy()
+    inside = (x > 200.0) & (x < 500.0)
+    wide[inside] = 1.5 + 6.0 * (wide[inside] - 1.5)
+    out = welds.deflated(wide, x)
+    core = (x > 260.0) & (x < 440.0)
+    spread = [np.percentile(v[core], 75) - np.median(v[core]) for v in (z, wide, out)]
+    assert spread[1] == pytest.approx(6.0 * spread[0], rel=0.05)
+    assert spread[2] == pytest.approx(spread[0], rel=0.15)  # drawn in by 6
+    far = x > 600.0  # at most a little: a quiet stretch's spread is near the pass's own
+    assert np.all(np.abs(out[far] - 1.5) >= 0.85 * np.abs(wide[far] - 1.5) - 0.05)
+    x_nan = x.copy()
+    assert np.isnan(welds.deflated(np.full(len(x), np.nan), x_nan)).all()
