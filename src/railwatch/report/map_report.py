@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.trackmap.geo import plane
+from railwatch.trackmap.welds import GROUP as WELD_GROUP
 
 if TYPE_CHECKING:
     from railwatch.trackmap.folder import PassEvents
@@ -146,6 +147,10 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         "colour": [COLOURS.get(p["status"], "#1f77b4") for p in places],
         "what": [f"{p['asset_kind']} {p['asset']}" if p["asset_kind"] else "" for p in places],
         "evidence": [p["evidence"] if p["evidence"] is not None else math.nan for p in places],
+        # the evidence panel draws the event layer's places: a weld place's evidence is its own
+        # layer's chance, drawn in the weld panel at its z
+        "on_evidence": [p["evidence"] if p["evidence"] is not None
+                        and p.get("group") != WELD_GROUP else math.nan for p in places],
         "weld_z": [p["weld_z"] if p["weld_z"] is not None else math.nan for p in places],
         "growth": [p["growth"] if p["growth"] is not None else math.nan for p in places],
         "interval": [f"{p['growth_low']:.2f}-{p['growth_high']:.2f}"
@@ -226,7 +231,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
         if level is not None and math.isfinite(level):
             along.add_layout(Span(location=level, dimension="width", line_color="#d62728",
                                   line_dash="dashed"))
-        marks = along.scatter("km", "evidence", source=source, size=9, fill_color="colour",
+        marks = along.scatter("km", "on_evidence", source=source, size=9, fill_color="colour",
                               line_color="black", selection_line_width=3,
                               nonselection_fill_alpha=0.7, nonselection_line_alpha=0.7)
         along.add_tools(TapTool(renderers=[marks]), HoverTool(renderers=[marks], tooltips=tips))
