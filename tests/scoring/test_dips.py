@@ -30,6 +30,22 @@ def test_robust_spectra_ignore_the_few_segments_with_a_defect() -> None:
     assert np.median(mean.s11[band]) > 20 * np.median(robust.s11[band])
 
 
+def test_robust_spectra_keep_the_rails_coherence_and_stay_a_valid_matrix() -> None:
+    """Rails that share most of their profile (coherence 0.81): the robust estimate keeps the
+    cross-spectrum the mean gives and never puts the coherence above 1 (a median of the
+    cross-spectrum's real and imaginary parts did: 1.08-1.11 on a rough physics track)."""
+    rng = np.random.default_rng(1)
+    common, own = rng.normal(0.0, 1.0, (2, 2 ** 18))
+    z = np.stack([common + 0.33 * own, common - 0.33 * rng.normal(0.0, 1.0, 2 ** 18)])
+    z[:, 50_000:50_080] += 40.0  # one strong item
+    robust = dips.rail_spectra([z], segment=4096, robust=True)
+    inner = slice(5, -5)
+    coherence = np.abs(robust.s12) ** 2 / (robust.s11 * robust.s22)
+    assert np.all(coherence[inner] <= 1.0 + 1e-9)
+    assert np.median(coherence[inner]) == pytest.approx(1 / 1.1089 ** 2, abs=0.02)
+    assert np.median(robust.s11[inner]) == pytest.approx(1.1089, rel=0.1)
+
+
 def test_z_is_standard_normal_off_a_weld_and_its_detectability_at_one() -> None:
     """White heights of known spectrum: off the weld ``z`` is N(0, 1) (one template), and the
     weld adds its detectability d' = depth · ‖s‖ / σ to the ``z`` where it starts."""

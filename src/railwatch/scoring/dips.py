@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import csd, welch
+from scipy.signal import csd, detrend, get_window, welch
 
 from railwatch.errors import RailwatchError
 
@@ -54,22 +54,57 @@ class RailSpectra:
 def rail_spectra(profiles: Sequence[FloatArray], dx: float = DX_M, segment: int = 8192,
                  robust: bool = False) -> RailSpectra:
     """Welch estimates of the rails' spectra, averaged over ``profiles`` (each (2, n), m).
-    ``robust``: each frequency's median over the segments instead of their mean (scipy's
-    bias-corrected median), so that the few segments holding a defect or a turnout do not
+    ``robust``: each frequency's mean over the segments less the quarter with the most power
+    (:func:`_trimmed_spectra`), so that the few segments holding a defect or a turnout do not
     raise the whole track's spectrum."""
-    average = "median" if robust else "mean"
     acc = []
     for z in profiles:
         if z.ndim != 2 or z.shape[0] != 2 or z.shape[1] < segment:
             raise RailwatchError(f"a profile must be (2, n) with n >= {segment}, not {z.shape}")
-        f, s11 = welch(z[0], fs=1 / dx, nperseg=segment, average=average)
-        _, s22 = welch(z[1], fs=1 / dx, nperseg=segment, average=average)
-        _, s21 = csd(z[0], z[1], fs=1 / dx, nperseg=segment, average=average)  # E[X₁* X₂]
+        if robust:
+            f, s11, s22, s12 = _trimmed_spectra(z, dx, segment)
+            acc.append((s11, s22, s12))
+            continue
+        f, s11 = welch(z[0], fs=1 / dx, nperseg=segment)
+        _, s22 = welch(z[1], fs=1 / dx, nperseg=segment)
+        _, s21 = csd(z[0], z[1], fs=1 / dx, nperseg=segment)  # E[X₁* X₂]
         acc.append((s11, s22, np.conj(s21)))
     s11, s22, s12 = (np.mean([a[i] for a in acc], axis=0) for i in range(3))
     half = 1 / (2 * dx)  # one-sided density (per cycle/m) -> power per DFT bin and sample
     return RailSpectra(np.asarray(f, dtype=float), np.asarray(s11.real * half),
                        np.asarray(s22.real * half), np.asarray(s12 * half))
+
+
+#: The robust spectra leave out, at each frequency, this share of the segments: those with the
+#: most power on both rails together.
+TRIM = 0.25
+
+
+def _trimmed_spectra(z: FloatArray, dx: float, segment: int
+                     ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.complex128]]:
+    """Welch's one-sided densities of both rails (Hann segments, half overlapping), the mean of
+    the segments' 2×2 periodograms less the :data:`TRIM` of segments that stand out most over
+    all frequencies (each segment's mean log ratio of its power on both rails to the median
+    segment's). Whole segments go, so the estimate stays a valid cross-spectral matrix with the
+    rails' coherence (a median of the cross-spectrum's parts is no valid matrix: the coherence
+    can exceed 1; trimming each frequency apart lowers the coherence), robust to the few
+    segments that hold a defect or a turnout."""
+    window = get_window("hann", segment)
+    starts = range(0, z.shape[1] - segment + 1, segment // 2)
+    spectra = np.stack([np.fft.rfft(detrend(z[:, s:s + segment], type="constant", axis=1)
+                                    * window, axis=1) for s in starts])  # (S, 2, F)
+    p11, p22 = np.abs(spectra[:, 0]) ** 2, np.abs(spectra[:, 1]) ** 2
+    p12 = spectra[:, 0] * np.conj(spectra[:, 1])  # E[X₁ X₂*]
+    total = (p11 + p22)[:, 1:-1] + 1e-300
+    excess = np.mean(np.log(total / np.median(total, axis=0)), axis=1)
+    keep = np.argsort(excess)[:max(1, int(round((1 - TRIM) * len(spectra))))]
+    scale = 2.0 * dx / np.sum(window ** 2)  # one-sided density, per cycle/m
+    mean = [p[keep].mean(axis=0) for p in (p11, p22, p12)]
+    one_sided = np.ones(segment // 2 + 1)
+    one_sided[0] = one_sided[-1] = 0.5  # DC and Nyquist are not doubled
+    f = np.fft.rfftfreq(segment, dx)
+    return (f, mean[0].real * scale * one_sided, mean[1].real * scale * one_sided,
+            mean[2] * scale * one_sided)
 
 
 def weld_shape(length_m: float, crown_share: float, crown_m: float = CROWN_M,
