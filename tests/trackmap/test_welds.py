@@ -147,8 +147,9 @@ def test_without_a_weld_test_the_map_is_as_before(tmp_path: Path) -> None:
 def test_a_stretch_whose_texture_spreads_wider_on_every_pass_is_judged_against_itself(
         tmp_path: Path) -> None:
     """Where every pass's weld test spreads five times wider about its median over 300 m (a
-    stretch run at another speed than the pass's spectra say), its peaks are no places; a weld on quiet track
-    still is, at its z. Without the stretch's own spread (SPREAD_M = 0) they are places."""
+    stretch run at another speed than the pass's spectra say), its peaks are no places; a
+    weld on quiet track still is, at its z. Without the stretch's own spread (SPREAD_M = 0)
+    they are places."""
     defects = np.array([500.0, 3300.0])
     xs, scores = profiles(6, defects, bump=4.0, seed=3)
     tests = weld_tests(6, texture={2600.0: 9.0}, once={})

@@ -12,10 +12,11 @@ shifted at random are no null for it, and its null is its own distribution along
    (the alignment's remaining error). First each pass's ``z`` is judged against its own
    stretch: where the spread of ``z`` over :data:`SPREAD_M` on either side (median to 75th
    percentile) is r times the pass's typical spread, ``z`` is drawn to the pass's median by
-   r where r is 2 or more (by less, down to nothing, as r falls to 1). The test is whitened by the pass's median spectra, and a stretch run at another speed can hold
-   more than they say (on a track run at 5-12 m/s, its 10-12 m/s stretches spread 5-10 times
-   wider, and gave 3.8 false places per km); a weld, a metre long, does not move an 80-m
-   stretch's quartiles.
+   r where r is 2 or more (by less, down to nothing, as r falls to 1). The test is whitened
+   by the pass's own spectra, and a stretch run at another speed can hold more than they say
+   (on a track run at 5-12 m/s, its 10-12 m/s stretches spread 10-15 times wider, and gave
+   3.8 false places per km); a weld, a metre long, does not move an 80-m stretch's
+   quartiles.
 2. **Fused**: each rail's median over the passes that cover a place, two at least. The texture
    is the same on every pass, so the median does not lower it; it does remove what one pass
    alone had (a bad stretch of signal, a wheel's flat spot).
