@@ -102,9 +102,10 @@ def _trimmed_spectra(z: FloatArray, dx: float, segment: int
     mean = [p[keep].mean(axis=0) for p in (p11, p22, p12)]
     one_sided = np.ones(segment // 2 + 1)
     one_sided[0] = one_sided[-1] = 0.5  # DC and Nyquist are not doubled
-    f = np.fft.rfftfreq(segment, dx)
-    return (f, mean[0].real * scale * one_sided, mean[1].real * scale * one_sided,
-            mean[2] * scale * one_sided)
+    f = np.asarray(np.fft.rfftfreq(segment, dx), dtype=np.float64)
+    return (f, np.asarray(mean[0].real * scale * one_sided, dtype=np.float64),
+            np.asarray(mean[1].real * scale * one_sided, dtype=np.float64),
+            np.asarray(mean[2] * scale * one_sided, dtype=np.complex128))
 
 
 def weld_shape(length_m: float, crown_share: float, crown_m: float = CROWN_M,
