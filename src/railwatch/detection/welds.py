@@ -6,8 +6,9 @@ recordings.rails`) tested for welds (:mod:`railwatch.scoring.dips`).
 (:func:`weld_evidence`), which the map fuses over passes (:mod:`railwatch.trackmap.welds`). The
 test: the heights on a 1-cm grid of distance travelled, whitened by the pass's own spectra
 (robust: the mean over 80-m segments less the quarter that stand out most, so that the few
-holding a defect or a turnout do not raise the whole track's) and matched to a bank of weld shapes, both rails
-together; wavelengths from the shortest the pass measured everywhere to :data:`LONGEST_M`.
+holding a defect or a turnout do not raise the whole track's) and matched to a bank of weld
+shapes, both rails together; wavelengths from the shortest the pass measured everywhere to
+:data:`LONGEST_M`.
 """
 
 from __future__ import annotations

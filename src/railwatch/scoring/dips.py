@@ -54,9 +54,9 @@ class RailSpectra:
 def rail_spectra(profiles: Sequence[FloatArray], dx: float = DX_M, segment: int = 8192,
                  robust: bool = False) -> RailSpectra:
     """Welch estimates of the rails' spectra, averaged over ``profiles`` (each (2, n), m).
-    ``robust``: each frequency's mean over the segments less the quarter with the most power
-    (:func:`_trimmed_spectra`), so that the few segments holding a defect or a turnout do not
-    raise the whole track's spectrum."""
+    ``robust``: the mean over the segments less the quarter that stand out most over all
+    frequencies (:func:`_trimmed_spectra`), so that the few segments holding a defect or a
+    turnout do not raise the whole track's spectrum."""
     acc = []
     for z in profiles:
         if z.ndim != 2 or z.shape[0] != 2 or z.shape[1] < segment:
@@ -75,8 +75,8 @@ def rail_spectra(profiles: Sequence[FloatArray], dx: float = DX_M, segment: int 
                        np.asarray(s22.real * half), np.asarray(s12 * half))
 
 
-#: The robust spectra leave out, at each frequency, this share of the segments: those with the
-#: most power on both rails together.
+#: The robust spectra leave out this share of the segments: those that stand out most over all
+#: frequencies, on both rails together.
 TRIM = 0.25
 
 
