@@ -66,7 +66,7 @@ SIDELOBE_M = 25.0
 SIDELOBE_RATIO = 5.0
 #: Each pass's z is judged against the spread of its own z within SPREAD_M on either side
 #: (median to SPREAD_PERCENTILE, of a value every SPREAD_EVERY_M): where the spread is r times
-#: the pass's typical one, z is drawn to the stretch's median by r from r = SPREAD_RATIO, by
+#: the pass's typical one, z is drawn to the pass's median by r from r = SPREAD_RATIO, by
 #: 1 + (r - 1)² / (SPREAD_RATIO - 1) below it (step 1). On the test tracks' passes r is
 #: 0.85-1.4 over 90 % of the line (5th-95th percentile): a weld there loses 15 % of its z at
 #: most; on the slow track's fast stretches it is 10-15.
