@@ -96,6 +96,20 @@ def test_fit_standardises_each_channel_without_labels() -> None:
     np.testing.assert_allclose(np.median(peak, axis=0), 0.0, atol=1e-5)
 
 
+def test_scores_do_not_depend_on_the_chunk_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The series are scored in chunks that keep the predictor's design in the cache; a chunk
+    of one window, or of all of them, gives the same scores (to rounding: the batched linear
+    algebra sums in another order)."""
+    from railwatch.detectors import matched_filter
+
+    data = generate(3, 200, seed=1)
+    det = create("matched-filter", {"progress": False, "null_windows": 500}).fit(data.X)
+    monkeypatch.setattr(matched_filter, "CHUNK_BYTES", 1)  # one window per chunk
+    one = det.raw_scores(data.X[:40])
+    monkeypatch.setattr(matched_filter, "CHUNK_BYTES", 1 << 40)  # every window in one chunk
+    np.testing.assert_allclose(det.raw_scores(data.X[:40]), one, rtol=1e-9, atol=1e-12)
+
+
 @pytest.mark.slow
 def test_matched_filter_stage_1_floor() -> None:
     train, test = generate(1, 2000, seed=0), generate(1, 1000, seed=1)

@@ -80,7 +80,7 @@ F64 = NDArray[np.float64]
 FIELD_MEMORY_S = 0.008
 FIELD_ENERGY_S = (0.004, 0.008, 0.016, 0.032)
 MAD_TO_STD = 1.4826  # σ = 1.4826 · median |e − median e| for Gaussian e
-CHUNK_SERIES = 512  # series (windows × channels) scored together
+CHUNK_BYTES = 4 << 20  # the predictors' design matrices of a chunk of windows (raw_scores)
 
 
 @dataclass(frozen=True)
@@ -187,11 +187,20 @@ def template_norm(c: F64, length: int) -> F64:
     >>> round(float(template_norm(np.array([[1.0, -1.0]]), 5)[0] ** 2), 9)  # step up, step down
     2.0
     """
+    return template_norms(c, (length,))[0]
+
+
+def template_norms(c: F64, lengths: tuple[int, ...]) -> list[F64]:
+    """:func:`template_norm` of every length, the autocorrelation of ``c`` computed once."""
     n_taps = c.shape[1]
-    lags = np.arange(min(n_taps, length))
+    lags = np.arange(min(n_taps, max(lengths)))
     rho = np.stack([(c[:, : n_taps - k] * c[:, k:]).sum(axis=1) for k in lags], axis=1)
-    weight = np.where(lags == 0, length, 2 * (length - lags)).astype(np.float64)
-    return np.sqrt(np.maximum(rho @ weight, 1e-12))
+    out = []
+    for length in lengths:
+        near = lags[:min(n_taps, length)]
+        weight = np.where(near == 0, length, 2 * (length - near)).astype(np.float64)
+        out.append(np.sqrt(np.maximum(rho[:, :len(near)] @ weight, 1e-12)))
+    return out
 
 
 # ----------------------------------------------------------------------------- the detector
@@ -234,8 +243,10 @@ class MatchedFilter(Detector):
     def raw_scores(self, X: FloatArray) -> NDArray[np.floating]:
         """Unstandardised channel scores (N, T, C): calibrated −log10 family-wise p.
 
-        Vectorised over chunks of about :data:`CHUNK_SERIES` series, which keeps the predictor's
-        design matrices (chunk, 2 (T − p), p + 1) small enough to stay in cache.
+        Vectorised over chunks of windows whose predictor design matrices (chunk · C,
+        2 (T − p), p + 1) fill about :data:`CHUNK_BYTES`: they stay in a core's cache. At 2 kHz
+        (T = 1179, p = 16, two channels) that is 6 windows a chunk; 256, as before 2026-12-05,
+        made `detect` a fifth slower (docs/notes/2026-12-05-detect-speed.md).
         """
         cfg = self.config
         n, n_steps, n_channels = X.shape
@@ -244,7 +255,8 @@ class MatchedFilter(Detector):
                 f"windows of {n_steps} steps are too short for a predictor of order {cfg.order}: "
                 f"need at least {2 * cfg.order + 2} (lower order)"
             )
-        step = max(1, CHUNK_SERIES // n_channels)
+        rows = 2 * (n_steps - cfg.order) * (cfg.order + 1) * 8  # design bytes per series
+        step = max(1, CHUNK_BYTES // (rows * n_channels))
         return np.concatenate([self._raw_chunk(X[i:i + step]) for i in range(0, n, step)])
 
     def _raw_chunk(self, X: FloatArray) -> NDArray[np.floating]:
@@ -258,7 +270,7 @@ class MatchedFilter(Detector):
         c = np.concatenate([np.ones((len(x), 1)), -coef[:, :-1]], axis=1)  # (B, p + 1)
         g = filter_correlate(w, c)
         to_ntc = (n, n_channels, 1)
-        norms = [[template_norm(c, L).reshape(to_ntc).transpose(0, 2, 1) for L in fam]
+        norms = [[v.reshape(to_ntc).transpose(0, 2, 1) for v in template_norms(c, fam)]
                  for fam in fams]  # each (N, 1, C)
         g = g.reshape(n, n_channels, n_steps).transpose(0, 2, 1)  # (N, T, C)
         counts = scale_counts(self.stats_["null_counts"], fams, self.n_steps_, n_steps)
