@@ -382,18 +382,31 @@ def world_checks() -> list[str]:
     return lines + [""]
 
 
+def seed_list(seeds: tuple[int, ...]) -> str:
+    """``200-202`` for a run of seeds, else the seeds listed.
+
+    >>> seed_list((200, 201, 202)), seed_list((200, 203))
+    ('200-202', '200, 203')
+    """
+    run = list(seeds) == list(range(seeds[0], seeds[0] + len(seeds)))
+    return f"{seeds[0]}-{seeds[-1]}" if run and len(seeds) > 1 else ", ".join(map(str, seeds))
+
+
 def pct(found: list[bool]) -> str:
     return f"{100 * np.mean(found):.0f} % ({sum(found)}/{len(found)})" if found else "-"
 
 
 def main() -> None:
-    global SEEDS, PASSES, COUNTS
+    global SEEDS, PASSES, COUNTS, ALSO
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--work", type=Path, default=Path("runs/physics"))
     parser.add_argument("--out", type=Path, default=Path(PAGE))
     parser.add_argument("--seeds", default="200,201,202",
                         help="tracks (the development tracks are 100 and 101)")
     parser.add_argument("--passes", type=int, default=12, help="passes per track")
+    parser.add_argument("--also", default=",".join(ALSO),
+                        help="the other detectors of the one-pass table, comma-separated; "
+                             "'' for none (context-glr's training is 10 minutes per track)")
     parser.add_argument("--made-differently", action="store_true",
                         help="only the worlds made differently, into "
                              "docs/results/physics/physics-made-differently.md")
@@ -403,6 +416,7 @@ def main() -> None:
         return
     SEEDS = tuple(int(s) for s in args.seeds.split(","))
     PASSES = args.passes
+    ALSO = tuple(d for d in args.also.split(",") if d)
     COUNTS = tuple(n for n in COUNTS if n <= PASSES - TRAIN)
     args.work.mkdir(parents=True, exist_ok=True)
     from railwatch.evaluation.pod import fit_pod
@@ -420,13 +434,14 @@ def main() -> None:
     lines = ["# The physics world at field scale\n",
              f"Command: `{command(__name__)}`, "
              f"{datetime.date.today().isoformat()}, {cpu_name()}, 2 cores. "
-             + " ".join(__doc__.split("\n\n")[1].split()), ""]
+             + " ".join(__doc__.split("\n\n")[1].split()).replace(
+                 "Test tracks: seeds 200-202;", f"Test tracks: seeds {seed_list(SEEDS)};"), ""]
     lines += world_checks()
     # ---- one pass
     lines += ["## One pass: `detect` with defaults\n",
               f"The map's detector ({MAP_DETECTOR}); beside it "
-              + ", ".join(ALSO) + ", trained and scanned the same way with every default of "
-              "`train` (its threshold the same rule's), and the oracle.\n",
+              + "".join(f"{d}, " for d in ALSO) + "trained and scanned the same way with every "
+              "default of `train` (its threshold the same rule's), and the oracle.\n",
               f"| defects | {MAP_DETECTOR} | " + " | ".join(ALSO) + " | oracle |",
               "|---|---|" + "---|" * len(ALSO) + "---|"]
     groups = [("squats >= 0.5 mm", lambda c: c["kind"] == "squat" and c["depth"] >= 0.5),
@@ -453,7 +468,8 @@ def main() -> None:
     json_out: dict[str, Any] = {"single_pass": one, "maps": {}}
     lines += ["## The map: the README's workflow with defaults\n",
               "Defects found by a reported place, from n passes (mean over the maps of "
-              "consecutive test passes and the three tracks), the oracle's map in brackets.\n"]
+              f"consecutive test passes and the {len(SEEDS)} tracks), the oracle's map in "
+              "brackets.\n"]
     for positioning, tol in POSITIONING.items():
         rows_all = []
         for folder in folders[positioning]:
