@@ -66,6 +66,16 @@ class WindowSet:
             raise RailwatchError(f"{path} has no labels ({', '.join(missing)}): evaluation needs "
                                  "a labelled set such as one from 'railwatch generate'")
 
+    def labels(self, path: str | os.PathLike[str] = "the windows") -> tuple[
+            NDArray[np.int8], NDArray[np.bool_], NDArray[np.int8], NDArray[np.int16]]:
+        """``y``, ``mask``, ``kind`` and ``channel``; a one-line error where one is missing."""
+        self.require_labels(path)
+        if self.kind is None:
+            raise RailwatchError(f"{path} has no labels (kind): a labelled set such as one "
+                                 "from 'railwatch generate' carries them")
+        assert self.y is not None and self.mask is not None and self.channel is not None
+        return self.y, self.mask, self.kind, self.channel
+
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write one ``.npz`` atomically (temporary file, then rename): nothing partial is left."""
         arrays: dict[str, Any] = {"X": self.X}

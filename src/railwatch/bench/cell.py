@@ -188,11 +188,12 @@ def run_cell(cell: Cell, preset: Preset, cache: Path) -> tuple[dict[str, Any], d
 
     det, fit_s, trained_by = fit_or_reuse(det, cell, preset, cache, train.X, ctx(train))
     score_s, scores = timed_scores(det, test.X, ctx(test), repeats=preset.timing_repeats)
-    metrics = evaluate_scores(test.y, test.mask, test.channel, scores, det.threshold_)
+    y, mask, kind, channel = test.labels()
+    metrics = evaluate_scores(y, mask, channel, scores, det.threshold_)
 
-    examples = np.flatnonzero(test.y)[:N_EXAMPLES]
+    examples = np.flatnonzero(y)[:N_EXAMPLES]
     arrays: dict[str, Any] = {
-        "instance": scores.instance, "y": test.y, "kind": test.kind,
+        "instance": scores.instance, "y": y, "kind": kind,
         "example_index": examples, "example_point": scores.point[examples],
         "example_channel": scores.channel[examples],
     }

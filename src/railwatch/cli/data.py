@@ -62,8 +62,9 @@ def generate(obj: dict, stage_number: int, n: int, seed: int, out: Path, compone
                         exact_rate=not bernoulli, components=components,
                         progress=obj["progress"])
     data.save(out)
-    info(f"wrote {out}: stage {stage_number}, X {data.X.shape}, {int(data.y.sum())} anomalous "
-         f"({int((data.kind == 1).sum())} spikes), {time.perf_counter() - started:.1f} s")
+    y, _, kind, _ = data.labels()
+    info(f"wrote {out}: stage {stage_number}, X {data.X.shape}, {int(y.sum())} anomalous "
+         f"({int((kind == 1).sum())} spikes), {time.perf_counter() - started:.1f} s")
 
 
 @click.group()

@@ -125,7 +125,7 @@ def score_places(positions: Sequence[float] | FloatArray, defects: FloatArray,
     on_def = np.abs(r_def) <= tolerance_m  # (defects, places)
     matched = on_def.any(axis=0)
     on_feat = (np.abs(r_feat) <= tolerance_m).any(axis=0) & ~matched
-    found = on_def.any(axis=1)
+    found = np.asarray(on_def.any(axis=1), dtype=bool)
     offsets = [float(row[hit][np.abs(row[hit]).argmin()])
                for row, hit in zip(d_def, on_def, strict=True) if hit.any()]
     return PlaceScore(found=found, on_features=int(on_feat.sum()),

@@ -62,6 +62,7 @@ def stages_figure(examples: Sequence[tuple[WindowSet, int]], seed: int = 0) -> F
 
 def _draw_instance(ax, data: WindowSet, i: int) -> None:  # type: ignore[no-untyped-def]
     meta, p = data.meta, data.params
+    _, mask, kind, channel = data.labels()
     fs, n_ch = meta["fs"], meta["n_channels"]
     t = np.arange(meta["n_steps"]) / fs
     x = data.X[i].astype(np.float64)  # (T, C)
@@ -85,7 +86,7 @@ def _draw_instance(ax, data: WindowSet, i: int) -> None:  # type: ignore[no-unty
                 * p["imp_period"][i, c]
             ax.plot(onsets, np.full(onsets.shape, lo + 0.05 * (hi - lo)), "^", color="black",
                     ms=4)
-        m = data.mask[i, :, c]
+        m = mask[i, :, c]
         if m.any():
             ax.fill_between([t[m].min() - 0.5 / fs, t[m].max() + 0.5 / fs], lo, hi,
                             color="red", alpha=0.15, lw=0)
@@ -94,11 +95,11 @@ def _draw_instance(ax, data: WindowSet, i: int) -> None:  # type: ignore[no-unty
         ax.set_yticks(offsets, meta["channel_names"])
     else:
         ax.set_ylabel("amplitude")
-    kind = KIND_NAMES[int(data.kind[i])]
-    ch = meta["channel_names"][int(data.channel[i])]
+    what = KIND_NAMES[int(kind[i])]
+    ch = meta["channel_names"][int(channel[i])]
     ax.set_title(
         f"Stage {meta['stage']}: {meta['stage_name']}  ·  # random variables: "
-        f"{meta['n_random_variables']}\n{kind} on {ch}, offset {p['anomaly_offset'][i]:+.2f}",
+        f"{meta['n_random_variables']}\n{what} on {ch}, offset {p['anomaly_offset'][i]:+.2f}",
         fontsize=10,
     )
     ax.set_xlim(0, meta["duration"])

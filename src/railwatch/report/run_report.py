@@ -42,11 +42,16 @@ FIGURES = {
 class Preset(Protocol):
     """What the report reads of the benchmark's preset."""
 
-    name: str
-    n_train: int
-    n_test: int
-    seeds: int
-    detectors: tuple[str, ...]
+    @property
+    def name(self) -> str: ...
+    @property
+    def n_train(self) -> int: ...
+    @property
+    def n_test(self) -> int: ...
+    @property
+    def seeds(self) -> int: ...
+    @property
+    def detectors(self) -> tuple[str, ...]: ...
 
     def overrides_for(self, detector: str) -> dict[str, Any]: ...
 

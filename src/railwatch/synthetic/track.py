@@ -177,7 +177,7 @@ def synthesize_pass(track: Track, seed: int, fs: float = 2000.0, direction: int 
     scale = speed / MEAN_SPEED
     data = render(rng, burst_rng, impulse_rng, t, travel_m, scale, track.gain_at(true),
                   track.stage, fs)
-    crossings = []
+    crossings: list[dict[str, Any]] = []
     for d in track.defects:
         if not min(true[0], true[-1]) <= d.position_m <= max(true[0], true[-1]):
             continue

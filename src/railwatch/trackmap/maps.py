@@ -408,7 +408,8 @@ def by_date(passes: list[PassEvents], since: str | None = None, until: str | Non
     hi = when(until, "--until", end=True) if until else None
     if lo is not None and hi is not None and hi < lo:
         raise RailwatchError(f"--until {until} is before --since {since}")
-    kept, left = [], []
+    kept: list[PassEvents] = []
+    left: list[PassEvents] = []
     for p in ordered:
         at = started_time(p.started) if p.started else None
         inside = at is not None and (lo is None or at >= lo) and (hi is None or at <= hi)

@@ -23,7 +23,7 @@ import io
 import json
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -115,6 +115,7 @@ def scan(model: str | os.PathLike[str], recordings: Sequence[str | os.PathLike[s
             if on_recording is not None:
                 on_recording(p.stem, None)
     args = (str(model), layout.to_dict(), threshold)
+    results: Iterator[tuple[Path, Any]]
     if executor == "local":
         results = ((p, _scan_one(p, *args, detector=rm)) for p in todo)
     elif executor == "ray":

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -54,7 +55,7 @@ def _num(v: float, fmt: str = "{:.4f}") -> str:
     return "" if not math.isfinite(v) else fmt.format(v)
 
 
-def worklist(reported: list[Location], responses: list[Response] = ()) -> list[Item]:
+def worklist(reported: list[Location], responses: Sequence[Response] = ()) -> list[Item]:
     """The work list of a map's ``reported`` places (module docstring); ``responses`` (the
     register's asset table) says which assets answer more than their kind."""
     abnormal = {r.asset.id: r for r in responses if r.abnormal}
