@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -53,7 +54,7 @@ def command(module: str) -> str:
     """The command that runs the benchmark ``module`` (its ``__name__``) with this run's
     options, as a page names it."""
     name = module.rpartition(".")[2]
-    return " ".join(["python -m benchmarks", name, *sys.argv[1:]])
+    return shlex.join(["python", "-m", "benchmarks", name, *sys.argv[1:]])
 
 
 def read_csv(path: Path) -> list[dict[str, Any]]:

@@ -440,9 +440,10 @@ def main() -> None:
     # ---- one pass
     lines += ["## One pass: `detect` with defaults\n",
               f"The map's detector ({MAP_DETECTOR}); beside it "
-              + "".join(f"{d}, " for d in ALSO) + "trained and scanned the same way with every "
-              "default of `train` (its threshold the same rule's), and the oracle.\n",
-              f"| defects | {MAP_DETECTOR} | " + " | ".join(ALSO) + " | oracle |",
+              + (", ".join(ALSO) + ", trained and scanned the same way with every default of "
+                 "`train` (its threshold the same rule's), and " if ALSO else "")
+              + "the oracle.\n",
+              "| " + " | ".join(["defects", MAP_DETECTOR, *ALSO, "oracle"]) + " |",
               "|---|---|" + "---|" * len(ALSO) + "---|"]
     groups = [("squats >= 0.5 mm", lambda c: c["kind"] == "squat" and c["depth"] >= 0.5),
               ("squats 0.3-0.5 mm", lambda c: c["kind"] == "squat" and 0.3 <= c["depth"] < 0.5),
@@ -505,7 +506,9 @@ def main() -> None:
         lines.append("")
     lines += track_allows(args.work, list(SEEDS), json_out["maps"]["GNSS-aided"])
     # ---- POD
+    figure = args.out.with_name(f"{args.out.stem}-pod.png")
     lines += ["## Probability of detection (hit/miss, MIL-HDBK-1823A)\n",
+              f"![The curves, ours beside the oracle's, per kind]({figure.name})\n",
               "a90 / a90/95 in mm of depth (steps: of height; corrugation: peak to trough); "
               "the oracle's in brackets.\n",
               "| kind | one pass, 10-20 m/s | one pass, 20-30 m/s | map, 2 passes | "
@@ -575,7 +578,7 @@ def main() -> None:
               f"{built:.1f} s and a pass over it {one_pass:.1f} s (2 cores).", ""]
     args.out.write_text("\n".join(lines) + "\n")
     (args.work / "physics.json").write_text(json.dumps(json_out, default=str))
-    draw_pod(pods, args.out.with_name("physics-pod.png"))
+    draw_pod(pods, figure)
     print(f"wrote {args.out}", file=sys.stderr)
 
 
@@ -822,6 +825,8 @@ def draw_pod(pods: dict[str, Any], path: Path) -> None:
             if not best.note:
                 ax.plot(grid, best.pod(grid), "-", color=line.get_color(), alpha=0.3)
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())  # no crowded labels
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
         ax.set_ylim(-0.02, 1.05)
         ax.axhline(0.9, color="grey", lw=0.5)
         ax.set_title(kind)
