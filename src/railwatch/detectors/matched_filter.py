@@ -255,8 +255,8 @@ class MatchedFilter(Detector):
                 f"windows of {n_steps} steps are too short for a predictor of order {cfg.order}: "
                 f"need at least {2 * cfg.order + 2} (lower order)"
             )
-        rows = 2 * (n_steps - cfg.order) * (cfg.order + 1) * 8  # design bytes per series
-        step = max(1, CHUNK_BYTES // (rows * n_channels))
+        per_series = 2 * (n_steps - cfg.order) * (cfg.order + 1) * 8  # bytes of its design
+        step = max(1, CHUNK_BYTES // (per_series * n_channels))
         return np.concatenate([self._raw_chunk(X[i:i + step]) for i in range(0, n, step)])
 
     def _raw_chunk(self, X: FloatArray) -> NDArray[np.floating]:
