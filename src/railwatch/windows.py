@@ -59,9 +59,11 @@ class WindowSet:
         """The components the file holds, by name (what ``fit``/``score`` take as side arrays)."""
         return {k: getattr(self, k) for k in COMPONENT_KEYS if getattr(self, k) is not None}
 
-    def require_labels(self, path: str | os.PathLike[str]) -> None:
-        """One-line error unless the windows carry the labels evaluation needs."""
-        missing = [k for k in ("y", "mask", "channel") if getattr(self, k) is None]
+    def require_labels(self, path: str | os.PathLike[str],
+                       keys: tuple[str, ...] = ("y", "mask", "channel")) -> None:
+        """One-line error unless the windows carry the labels ``keys`` (by default those
+        evaluation needs)."""
+        missing = [k for k in keys if getattr(self, k) is None]
         if missing:
             raise RailwatchError(f"{path} has no labels ({', '.join(missing)}): evaluation needs "
                                  "a labelled set such as one from 'railwatch generate'")
@@ -69,11 +71,9 @@ class WindowSet:
     def labels(self, path: str | os.PathLike[str] = "the windows") -> tuple[
             NDArray[np.int8], NDArray[np.bool_], NDArray[np.int8], NDArray[np.int16]]:
         """``y``, ``mask``, ``kind`` and ``channel``; a one-line error where one is missing."""
-        self.require_labels(path)
-        if self.kind is None:
-            raise RailwatchError(f"{path} has no labels (kind): a labelled set such as one "
-                                 "from 'railwatch generate' carries them")
-        assert self.y is not None and self.mask is not None and self.channel is not None
+        self.require_labels(path, ("y", "mask", "kind", "channel"))
+        assert self.y is not None and self.mask is not None  # narrowed for the type checker
+        assert self.kind is not None and self.channel is not None
         return self.y, self.mask, self.kind, self.channel
 
     def save(self, path: str | os.PathLike[str]) -> Path:
