@@ -23,7 +23,8 @@ a register they are assets, and a dipped one is an asset that answers more than 
    those flagged abnormal.
 
 Second table, **a register learned from the passes** (`track-map --learn-assets`, no
-register given; its rule was developed on the development tracks 100-105): the same maps,
+register given; its rule was developed on the development tracks 100-105, its crossing noses
+also on the trends benchmark's lines 500, 504-506 and 510-511): the same maps,
 scored against the track's features alone (its joints are then defects: nothing tells a
 learned register they are insulated joints). Assets labelled: of the features with a reported
 place, the share whose place is labelled with a learned asset, in all and per kind.

@@ -31,7 +31,8 @@ the passes' odometry), median and 95th percentile.
 Third table, **the issue's maintenance targets** on the same maps, with the line's register
 (`--assets track.assets.csv`: its turnouts, bridge transitions and level crossings) and with a
 register learned from the passes instead (`--learn-assets`, its rule developed on the physics
-development tracks 100-105): of every defect of the line, the share reported as an unexplained
+development tracks 100-105, its crossing noses also on lines 500, 504-506 and 510-511): of
+every defect of the line, the share reported as an unexplained
 place within 2 m (on the earth by the places' GNSS points; along the track in the map's frame,
 which carries the odometry's common error) and within 5 m along; of the register's assets with
 a reported place within 5 m, the share labelled right (the register: with that asset, or with

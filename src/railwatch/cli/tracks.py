@@ -186,8 +186,10 @@ other assets of its kind, in their spread); abnormal = yes from 3.5, given 4 of 
 @click.option("--learn-assets", is_flag=True,
               help="No register: propose as assets the places seen on nearly every pass, "
                    "stable, on both rails alike (switches, bridge transitions, level "
-                   "crossings); they are labelled so, and MAP.learned-assets.csv is a register "
-                   "to confirm and give back with --assets.")
+                   "crossings), and a turnout's crossing nose: the nearest such place on one "
+                   "rail within 60 m of a switch, at least as strong; they are labelled so, and "
+                   "MAP.learned-assets.csv is a register to confirm and give back with "
+                   "--assets.")
 @click.option("--asset-tolerance-m", type=click.FloatRange(min=0), default=5.0,
               show_default=True,
               help="A place lies on an asset within this distance of its stretch (the map's "
