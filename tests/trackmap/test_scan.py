@@ -238,3 +238,26 @@ def test_a_gnss_layout_keeps_each_recording_route(track, tmp_path: Path, capsys)
     placed = [f for f in json.loads(collection.read_text())["features"]
               if f["properties"]["kind"] == "place"]
     assert placed and all(f["geometry"] is not None for f in placed)
+
+
+def test_a_field_rate_recording_keeps_its_low_band_at_the_profiles_samples(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import pandas as pd
+
+    from railwatch.recordings.layout import Layout
+    from railwatch.recordings.readers import Recording
+    from railwatch.trackmap.scan import band_at
+
+    fs = 2_000.0
+    t = np.arange(0, 2.0, 1 / fs)
+    path = tmp_path / "r.parquet"
+    pd.DataFrame({"left": np.sin(2 * np.pi * 50 * t), "right": np.sin(2 * np.pi * 600 * t),
+                  }).to_parquet(path)
+    rec = Recording(path, Layout(fs=fs, channels=("left", "right"), groups=("axle", "axle")))
+    band = band_at(rec, t)
+    assert band is not None and band.shape == (len(t), 2)
+    assert band[200:-200, 0].max() > 0.95 and band[200:-200, 1].max() < 0.01
+    half = band_at(rec, t[::2])  # a profile at another rate: the band at its times
+    assert half is not None and np.allclose(half, band[::2], atol=1e-6)
+    slow = Recording(path, Layout(fs=100.0, channels=("left", "right"),
+                                  groups=("axle", "axle")))
+    assert band_at(slow, t[::20]) is None

@@ -141,3 +141,63 @@ def test_track_map_over_dated_passes(tmp_path, capsys) -> None:  # type: ignore[
         series = [r for r in csv.DictReader(fh) if r["rank"] == grown["rank"]]
     assert [r["pass"] for r in series] == [f"pass{j:02d}" for j in range(8)]
     assert float(series[-1]["strength"]) > 2 * float(series[0]["strength"])
+
+
+def test_the_low_band_keeps_p2_and_drops_the_sharp_impact() -> None:
+    fs = 2_000.0
+    t = np.arange(0, 2.0, 1 / fs)
+    data = np.stack([np.sin(2 * np.pi * 50 * t), np.sin(2 * np.pi * 600 * t)], axis=1)
+    data[1000, 0] = np.nan
+    band = trends.low_band(data, fs)
+    assert band is not None and band.shape == data.shape and band.dtype == np.float32
+    middle = slice(200, -200)
+    assert 0.95 < np.nanmax(band[middle, 0]) < 1.05 and np.nanmax(band[middle, 1]) < 0.01
+    assert np.isnan(band[1000, 0]) and np.isfinite(band[1001, 0])
+    assert trends.low_band(data, 100.0) is None  # the benchmark's rate: the score is measured
+
+
+def test_the_trend_reads_the_low_band_where_the_scan_kept_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The scores stay level at every defect; the low band grows three times at one: with the
+    band kept, that place alone is growing; without it, none is."""
+    import csv
+    import json
+
+    from railwatch.cli import main
+    from support import scan_folder
+
+    rng = np.random.default_rng(6)
+    defects = np.array([800.0, 1800.0, 3300.0, 4400.0])
+    xs, scores, bands = [], [], []
+    for j in range(8):
+        x = np.arange(0, 5_000.0, 0.25) + rng.uniform(0, 0.25)
+        s = rng.exponential(size=len(x))
+        b = rng.exponential(size=(len(x), 3))
+        for k, d in enumerate(defects):
+            near = np.abs(x - d) <= 0.4
+            s[near] += 12.0 * rng.lognormal(0.0, 0.1)
+            b[near, :2] += 12.0 * (1.0 + 2.0 * j / 7 if k == 1 else 1.0) * rng.lognormal(0, 0.1)
+        xs.append(x)
+        scores.append(s)
+        bands.append(b)
+    for with_band in (True, False):
+        folder = tmp_path / f"band{with_band}"
+        folder.mkdir()
+        scan_folder(folder, xs, scores, defects)
+        for j in range(8):
+            info_path = folder / f"pass{j:02d}.scan.json"
+            info = json.loads(info_path.read_text())
+            info["started"] = f"2026-01-{5 + 3 * j:02d}T06:00:00Z"
+            info_path.write_text(json.dumps(info))
+            if with_band:
+                path = folder / f"pass{j:02d}.profile.npz"
+                with np.load(path) as f:
+                    arrays = dict(f)
+                np.savez(path, **arrays, channel_band=bands[j].astype(np.float32))
+        out = folder / "m.csv"
+        assert main(["-q", "track-map", "--events", str(folder), "--out", str(out)]) == 0
+        with open(out, newline="") as fh:
+            rows = [r for r in csv.DictReader(fh) if float(r["false_per_km"]) <= 0.1]
+        assert {round(float(r["position_m"])) for r in rows} >= set(defects)
+        growing = {round(float(r["position_m"]) / 100) * 100 for r in rows
+                   if r["growing"] == "yes"}
+        assert growing == ({1800} if with_band else set()), (with_band, growing)

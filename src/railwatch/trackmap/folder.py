@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
+from railwatch.recordings.prepare import AXLE_GROUPS
 
 #: What a scan writes per recording beside its events (``<name>.scan.json``).
 SCAN_SUFFIX = ".scan.json"
@@ -50,6 +51,9 @@ ROUTE_ARRAY = "route"
 #: (recordings.rails.weld_evidence): every 5 cm travelled, the recorded position (m) and the
 #: highest ``z`` of the rail under each axle box of the layout's axle group, in its order (k, 2).
 WELD_ARRAYS = ("weld_position_m", "weld_z")
+#: ... and, for a recording at field rate, each sample's low band per channel (n, C): the
+#: recording's |acceleration| below trends.BAND_HZ, what a place's trend measures.
+BAND_ARRAY = "channel_band"
 #: The keys of ``NAME.scan.json``: what was scanned, by which model, how, and the stretch of
 #: track it covered (recorded positions of its first and last sample).
 SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
@@ -69,6 +73,7 @@ class ScoreProfile:
     route: NDArray[np.float64] | None = None  # (k, 3) time, latitude, longitude (None: no GNSS)
     weld_position: NDArray[np.float64] | None = None  # (k,) recorded positions of the weld
     weld_z: NDArray[np.float32] | None = None  # test, and its z per axle box (k, 2) (None: none)
+    channel_band: NDArray[np.float32] | None = None  # (n, C) each sample's low band (None: none)
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
@@ -76,6 +81,15 @@ class ScoreProfile:
         g = np.asarray(self.groups)
         return np.stack([self.channel_score[:, g == name].max(axis=1) if (g == name).any()
                          else np.full(len(self.position), np.nan) for name in groups], axis=1)
+
+    def band(self) -> NDArray[np.float64] | None:
+        """(n,) the low band a place's trend measures (``trends``): the highest of the axle-box
+        group's channels (every channel's where no group is one); None without it."""
+        if self.channel_band is None:
+            return None
+        axle = np.array([g.lower() in AXLE_GROUPS for g in self.groups])
+        pick = axle if axle.any() else np.ones(len(self.groups), bool)
+        return self.channel_band[:, pick].max(axis=1).astype(np.float64)
 
     def on_rails(self, channels: tuple[str, ...], mirrored: bool) -> NDArray[np.float64]:
         """(n, len(channels)): column j the score of the channel that was over channel j's
@@ -205,11 +219,11 @@ def _read_pass(info_path: Path) -> PassEvents:
 def profile_arrays(time_s: NDArray[np.float64], position_m: NDArray[np.float64],
                    channel_score: NDArray[np.float32], channels: tuple[str, ...],
                    groups: tuple[str, ...], route: NDArray[np.float64] | None = None,
-                   weld: tuple[NDArray[Any], NDArray[Any]] | None = None
-                   ) -> dict[str, NDArray[Any]]:
+                   weld: tuple[NDArray[Any], NDArray[Any]] | None = None,
+                   band: NDArray[Any] | None = None) -> dict[str, NDArray[Any]]:
     """``NAME.profile.npz``'s arrays by their names (:data:`PROFILE_ARRAYS`, and
     :data:`ROUTE_ARRAY` where there is a route, :data:`WELD_ARRAYS` where there is a weld
-    test)."""
+    test, :data:`BAND_ARRAY` where there is a low band)."""
     values = (np.asarray(time_s, dtype=float), np.asarray(position_m, dtype=float),
               np.asarray(channel_score, dtype=np.float32), np.array(channels), np.array(groups))
     arrays = dict(zip(PROFILE_ARRAYS, values, strict=True))
@@ -218,6 +232,8 @@ def profile_arrays(time_s: NDArray[np.float64], position_m: NDArray[np.float64],
     if weld is not None:
         arrays[WELD_ARRAYS[0]] = np.asarray(weld[0], dtype=float)
         arrays[WELD_ARRAYS[1]] = np.asarray(weld[1], dtype=np.float32).reshape(-1, 2)
+    if band is not None:
+        arrays[BAND_ARRAY] = np.asarray(band, dtype=np.float32)
     return arrays
 
 
@@ -237,6 +253,7 @@ def _read_profile(path: Path) -> ScoreProfile | None:
             time_s, position, score, channels, groups = (f[k] for k in PROFILE_ARRAYS)
             route = f[ROUTE_ARRAY] if ROUTE_ARRAY in f.files else None
             weld = [f[k] for k in WELD_ARRAYS] if WELD_ARRAYS[1] in f.files else None
+            band = f[BAND_ARRAY] if BAND_ARRAY in f.files else None
             profile = ScoreProfile(position=np.asarray(position, dtype=float),
                                    time_s=np.asarray(time_s, dtype=float),
                                    channel_score=np.asarray(score, np.float32),
@@ -247,13 +264,19 @@ def _read_profile(path: Path) -> ScoreProfile | None:
                                    weld_position=None if weld is None
                                    else np.asarray(weld[0], dtype=float),
                                    weld_z=None if weld is None
-                                   else np.asarray(weld[1], np.float32).reshape(-1, 2))
+                                   else np.asarray(weld[1], np.float32).reshape(-1, 2),
+                                   channel_band=None if band is None
+                                   else np.asarray(band, np.float32))
     except (OSError, ValueError, KeyError) as e:
         raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
                              "scan again") from None
     if profile.weld_z is not None and profile.weld_position is not None and \
             len(profile.weld_z) != len(profile.weld_position):
         raise RailwatchError(f"{path} is damaged (its weld test does not match its positions): "
+                             "remove it and its .scan.json, then scan again")
+    if profile.channel_band is not None and \
+            profile.channel_band.shape != profile.channel_score.shape:
+        raise RailwatchError(f"{path} is damaged (its low band does not match its scores): "
                              "remove it and its .scan.json, then scan again")
     if profile.channel_score.shape != (len(profile.position), len(profile.channels)):
         raise RailwatchError(f"{path} is damaged (its scores do not match its positions and "

@@ -90,6 +90,8 @@ class Fused:
     # their map positions (set by the track map)
     pass_score: list[NDArray[np.float64]] = field(default_factory=list)  # and their scores
     # (the highest sensor group's)
+    pass_band: list[NDArray[np.float64]] = field(default_factory=list)  # and their low band
+    # (trends.low_band: set where every pass has one)
     welds: Any = None  # the map's weld layer (trackmap.welds.WeldLayer), set by the track map
 
     def false_per_km(self, evidence: NDArray[np.float64] | float) -> NDArray[np.float64]:

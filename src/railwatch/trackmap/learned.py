@@ -146,7 +146,7 @@ def noses(both: list[Proposed], one: list[Proposed]) -> list[Proposed]:
     (``both``) and within :data:`LEAD_M` of it, the nearest, where that place is its own
     nearest on both rails: a turnout's crossing nose beside its switch toe, ``beside`` set to
     the switch's place."""
-    out = []
+    out: list[Proposed] = []
     for b in both:
         near = [q for q in one if abs(q.place.position_m - b.place.position_m) <= LEAD_M
                 and q.place.evidence >= b.place.evidence]

@@ -10,7 +10,10 @@ done. Where the layout names ``latitude`` and ``longitude`` columns, the profile
 recording's route (its GNSS fixes at 10 Hz): what puts the map's places on the earth. A model
 that knows its axle boxes' response (``train`` identifies it at field scale) also keeps each
 recording's weld test along the track (:mod:`railwatch.detection.welds`): what the map's weld
-layer fuses.
+layer fuses. A recording at field rate keeps each sample's low band too (|acceleration| below
+200 Hz, :func:`railwatch.trackmap.trends.low_band`): what a place's trend measures. A scan made
+before railwatch kept it is mapped as before, its trends on the detector's score; scan into a
+new folder to measure them on the low band.
 ``events.csv`` combines them all with a ``recording`` column. Only the driver writes; a
 Ray task reads its recording and returns its events and profile.
 """
@@ -29,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path, atomic_savez, sha256_file
 from railwatch.detection import pipeline, welds
@@ -36,6 +40,7 @@ from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.readers import Recording, iso_time, recording_route, recording_start
+from railwatch.trackmap import trends
 from railwatch.trackmap.folder import (
     COMBINED,
     EVENTS_SUFFIX,
@@ -220,9 +225,25 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
     weld = None
     if rm.response is not None:  # the weld test (recordings.rails): its own arrays
         weld = welds.weld_evidence(*welds.axle_motion(rec), rm.response)
-    arrays = profile_arrays(*profile.columns(), lay.channels, lay.groups,
-                            route=recording_route(path, lay), weld=weld)
+    time_s, position_m, score = profile.columns()
+    arrays = profile_arrays(time_s, position_m, score, lay.channels, lay.groups,
+                            route=recording_route(path, lay), weld=weld,
+                            band=band_at(rec, time_s))
     return pipeline.events_text(result.events, "csv"), arrays, info
+
+
+def band_at(rec: Recording, time_s: NDArray[np.float64]) -> NDArray[np.float32] | None:
+    """The recording's low band (``trends.low_band``) at the profile's sample times ``time_s``
+    (its own samples where they are one to one, as at field scale); None where it has none."""
+    if rec.layout.fs < trends.BAND_RATE * trends.BAND_HZ:
+        return None
+    chunk = rec.read()
+    band = trends.low_band(chunk.data, rec.layout.fs)
+    if band is None or len(band) == len(time_s):
+        return band
+    at = chunk.time if chunk.time is not None else np.arange(len(band)) / rec.layout.fs
+    return np.stack([np.interp(time_s, at, band[:, c]) for c in range(band.shape[1])],
+                    axis=1).astype(np.float32)
 
 
 def _combine(out: Path, names: list[str]) -> tuple[int, float]:
