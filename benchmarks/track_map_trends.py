@@ -18,9 +18,11 @@ apart: twenty weeks). A defect is on the map when a reported place lies within 5
    reported place not on a growing squat (defects, features, anything), the share flagged;
 3. **Growth**: the median of the map's `growth` (the fitted strength ratio, last pass over
    first) over the flagged squats, beside the median of their true depth ratio;
-4. **Oracle**: the same test on what each squat does to the axle box, per pass the peak
-   |pass − clean twin| over its rail within 50 ms of the crossing (every squat the passes
-   crossed, on the map or not): what the data allow a trend to see.
+4. **Oracle**: the same test on what each squat does to the axle box, per pass the peak of
+   the low band of pass − clean twin over its rail within 50 ms of the crossing (every squat
+   the passes crossed, on the map or not): what the data allow a trend to see. A place's
+   strength is the low band's peak where the scan kept it (`trends.low_band`: |acceleration|
+   below 200 Hz, at field rate as here).
 
 Second table, **the places on the earth** (`track-map --geojson`: each place's latitude and
 longitude, the median over the passes of the pass's GNSS fix where it crossed the place): for
@@ -213,9 +215,10 @@ def earth(folder: Path, geojson: Path) -> dict[int, Any]:
 
 def oracle_trends(folder: Path) -> dict[str, bool]:
     """Per squat crossed by the mapped passes, whether the trend test flags what the squat
-    does to the axle box: per pass the peak |pass − clean twin| of the axle-box channel over
-    its rail within 50 ms of the crossing (what the data allow: no detector, no noise
-    estimate, the defect's own response), with the pass's speed there, the map's test."""
+    does to the axle box: per pass the peak of the low band (what the map's trend measures,
+    `trends.low_band`) of pass − clean twin of the axle-box channel over its rail within 50 ms
+    of the crossing (what the data allow: no detector, no noise, the defect's own response),
+    with the pass's speed there, the map's test (the low band kept in its units)."""
     import json
 
     import pandas as pd
@@ -229,15 +232,19 @@ def oracle_trends(folder: Path) -> dict[str, bool]:
     speed: dict[str, np.ndarray] = {}
     for j, entry in enumerate(passes):
         name = entry["pass"]
-        signal = pd.read_parquet(folder / f"{name}.parquet")
-        twin = pd.read_parquet(folder / "twins" / f"{name}.parquet")
-        for r in read_csv(folder / f"{name}.defects.csv"):
-            if r["kind"] != "squat":
-                continue
+        squats = [r for r in read_csv(folder / f"{name}.defects.csv") if r["kind"] == "squat"]
+        channels = sorted({r["channel"] for r in squats})
+        if not channels:
+            continue
+        diff = (pd.read_parquet(folder / f"{name}.parquet", columns=channels).to_numpy()
+                - pd.read_parquet(folder / "twins" / f"{name}.parquet",
+                                  columns=channels).to_numpy())
+        band = trends.low_band(diff, fs)
+        assert band is not None, "the physics world records at field rate"
+        for r in squats:
             i, w = int(round(float(r["center_s"]) * fs)), int(0.05 * fs)
-            diff = (signal[r["channel"]].to_numpy()[max(i - w, 0):i + w]
-                    - twin[r["channel"]].to_numpy()[max(i - w, 0):i + w])
-            peak.setdefault(r["defect"], np.full(len(passes), np.nan))[j] = np.abs(diff).max()
+            peak.setdefault(r["defect"], np.full(len(passes), np.nan))[j] = \
+                band[max(i - w, 0):i + w, channels.index(r["channel"])].max()
             speed.setdefault(r["defect"], np.full(len(passes), np.nan))[j] = float(
                 r["speed_ms"])
     return {k: trends.trend(np.log(np.maximum(v, 1e-9)), t, speed[k]).growing

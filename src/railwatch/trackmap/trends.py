@@ -7,8 +7,8 @@ times and positions). The value is the axle boxes' **low band**, |acceleration| 
 detector's score otherwise. A squat that deepens and lengthens pushes the wheelset down
 further on the track (P2, 30-90 Hz) while its sharp impact above a few hundred Hz hardly
 grows: on the development lines the defect's own response below 200 Hz grew 1.77 times where
-the squats deepened 2.34 times, above 200 Hz 1.24 times, and the detector's score, which
-weighs the sharp impact most, flagged 70 % of the grown squats where the low band flags 95 %
+the squats deepened 2.34 times, above 200 Hz 1.24 times; on their maps the detector's score
+flagged 70 % of the grown squats, the low band 90 %
 (docs/notes/2026-12-05-growth-in-the-low-band.md). Strengths are compared like with like:
 
 1. **Per pass**: ``log`` strength; a detector's score less the pass's own offset, the median
@@ -56,8 +56,9 @@ BAND_RATE = 4.0
 #: the 5 % of stable places a work list may flag, the rest a margin for residuals that are not
 #: quite Student's (2.4-3.6 % of 1,600 synthetic stable places, tests/trackmap/test_trends.py).
 #: On the development lines (physics lines 500, 504-506: 20 squats grown by half or more, 77
-#: stable defects) 0.01 flagged 45 % of the grown and 2.6 % of the stable, 0.025 60 % and 3.9 %,
-#: 0.05 75 % and 3.9 % (docs/maintenance.md).
+#: stable defects), on the detector's score, 0.01 flagged 45 % of the grown and 2.6 % of the
+#: stable, 0.025 60 % and 3.9 %, 0.05 75 % and 3.9 % (docs/maintenance.md); on the low band
+#: 0.025 flags 90 % and none.
 GROWING_P = 0.025
 #: Dated passes a place needs for a trend (one more when its speeds are known).
 MIN_PASSES = 4
