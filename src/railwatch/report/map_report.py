@@ -88,7 +88,8 @@ def report_map(path: str | os.PathLike[str], made: TrackMap, done: Plan,
                         (made.fused.grid, made.fused.evidence) if made.fused is not None
                         else None, made.level, assets,
                         (made.fused.welds.grid, made.fused.welds.top, made.fused.welds.level(0.1))
-                        if made.fused is not None and made.fused.welds is not None else None)
+                        if made.fused is not None and made.fused.welds is not None else None,
+                        tm.trends.unit(made.fused) if made.fused is not None else "score")
 
 
 def write_report(path: str | os.PathLike[str], title: str, summary: str,
@@ -98,8 +99,8 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                  history: list[dict[str, Any]], evidence: tuple[NDArray[np.float64],
                                                                 NDArray[np.float64]] | None,
                  level: float | None, assets: Sequence[dict[str, Any]] = (),
-                 welds: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None
-                 ) -> Path:
+                 welds: tuple[NDArray[np.float64], NDArray[np.float64], float] | None = None,
+                 measure: str = "score") -> Path:
     """Write the report (module docstring). ``places``: every reported place's fields, work
     list first (:func:`railwatch.trackmap.geo.features`); ``where``: their latitude and
     longitude (NaN: unknown); ``line``: (k, 2) latitude, longitude (empty: no GNSS);
@@ -108,7 +109,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
     map (positions m, values) and the reporting ``level``, None for a votes map; ``assets``:
     the register's assets on the line (id, kind, km, lat, lon), drawn as grey squares;
     ``welds``: the map's weld layer (positions m, fused z, its level at 0.1 places per km),
-    None without one."""
+    None without one; ``measure``: what a strength is (the history's axis)."""
     from bokeh.embed import file_html
     from bokeh.layouts import column, row
     from bokeh.models import (
@@ -212,7 +213,7 @@ def write_report(path: str | os.PathLike[str], title: str, summary: str,
                                                                          "in their order)"),
                    width=520, height=420 if on_earth else 200,
                    x_axis_type="datetime" if dated else "linear", name="history",
-                   x_axis_label="date" if dated else "pass", y_axis_label="score",
+                   x_axis_label="date" if dated else "pass", y_axis_label=measure,
                    tools="pan,wheel_zoom,reset,save")
     chart.line("x", "strength", source=hist, color="#d62728")
     chart.scatter("x", "strength", source=hist, size=7, color="#d62728")

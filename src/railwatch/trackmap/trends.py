@@ -145,6 +145,11 @@ def measured(fused: Fused) -> list[NDArray[np.float64]]:
     return fused.pass_band if fused.pass_band else fused.pass_score
 
 
+def unit(fused: Fused) -> str:
+    """What :func:`measured` reads, in words (a plot's axis)."""
+    return f"low band (|acceleration| below {BAND_HZ:.0f} Hz)" if fused.pass_band else "score"
+
+
 def adjusted(strength: NDArray[np.float64]) -> NDArray[np.float64]:
     """Log strengths less each pass's own offset (module docstring, step 1)."""
     y = np.log(np.maximum(strength, FLOOR))
