@@ -171,11 +171,11 @@ def test_the_trend_reads_the_low_band_where_the_scan_kept_it(tmp_path) -> None: 
     for j in range(8):
         x = np.arange(0, 5_000.0, 0.25) + rng.uniform(0, 0.25)
         s = rng.exponential(size=len(x))
-        b = rng.exponential(size=(len(x), 3))
+        b = rng.exponential(size=(len(x), 2))
         for k, d in enumerate(defects):
             near = np.abs(x - d) <= 0.4
             s[near] += 12.0 * rng.lognormal(0.0, 0.1)
-            b[near, :2] += 12.0 * (1.0 + 2.0 * j / 7 if k == 1 else 1.0) * rng.lognormal(0, 0.1)
+            b[near] += 12.0 * (1.0 + 2.0 * j / 7 if k == 1 else 1.0) * rng.lognormal(0, 0.1)
         xs.append(x)
         scores.append(s)
         bands.append(b)
@@ -192,7 +192,7 @@ def test_the_trend_reads_the_low_band_where_the_scan_kept_it(tmp_path) -> None: 
                 path = folder / f"pass{j:02d}.profile.npz"
                 with np.load(path) as f:
                     arrays = dict(f)
-                np.savez(path, **arrays, channel_band=bands[j].astype(np.float32))
+                np.savez(path, **arrays, band=bands[j][:, :2].max(axis=1).astype(np.float32))
         out = folder / "m.csv"
         assert main(["-q", "track-map", "--events", str(folder), "--out", str(out)]) == 0
         with open(out, newline="") as fh:

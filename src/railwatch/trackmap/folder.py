@@ -24,7 +24,6 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
-from railwatch.recordings.prepare import AXLE_GROUPS
 
 #: What a scan writes per recording beside its events (``<name>.scan.json``).
 SCAN_SUFFIX = ".scan.json"
@@ -51,9 +50,10 @@ ROUTE_ARRAY = "route"
 #: (recordings.rails.weld_evidence): every 5 cm travelled, the recorded position (m) and the
 #: highest ``z`` of the rail under each axle box of the layout's axle group, in its order (k, 2).
 WELD_ARRAYS = ("weld_position_m", "weld_z")
-#: ... and, for a recording at field rate, each sample's low band per channel (n, C): the
-#: recording's |acceleration| below trends.BAND_HZ, what a place's trend measures.
-BAND_ARRAY = "channel_band"
+#: ... and, for a recording at field rate, each sample's low band (n,): the highest over the
+#: axle-box group's channels (every channel's where no group is one) of |acceleration| below
+#: trends.BAND_HZ, what a place's trend measures.
+BAND_ARRAY = "band"
 #: The keys of ``NAME.scan.json``: what was scanned, by which model, how, and the stretch of
 #: track it covered (recorded positions of its first and last sample).
 SCAN_KEYS = ("recording", "duration_s", "events", "threshold", "detect_s", "position_first_m",
@@ -73,7 +73,7 @@ class ScoreProfile:
     route: NDArray[np.float64] | None = None  # (k, 3) time, latitude, longitude (None: no GNSS)
     weld_position: NDArray[np.float64] | None = None  # (k,) recorded positions of the weld
     weld_z: NDArray[np.float32] | None = None  # test, and its z per axle box (k, 2) (None: none)
-    channel_band: NDArray[np.float32] | None = None  # (n, C) each sample's low band (None: none)
+    low_band: NDArray[np.float32] | None = None  # (n,) each sample's low band (None: none)
 
     def by_group(self, groups: tuple[str, ...]) -> NDArray[np.float64]:
         """(n, len(groups)): the highest channel score of each sensor group (the side a defect
@@ -81,15 +81,6 @@ class ScoreProfile:
         g = np.asarray(self.groups)
         return np.stack([self.channel_score[:, g == name].max(axis=1) if (g == name).any()
                          else np.full(len(self.position), np.nan) for name in groups], axis=1)
-
-    def band(self) -> NDArray[np.float64] | None:
-        """(n,) the low band a place's trend measures (``trends``): the highest of the axle-box
-        group's channels (every channel's where no group is one); None without it."""
-        if self.channel_band is None:
-            return None
-        axle = np.array([g.lower() in AXLE_GROUPS for g in self.groups])
-        pick = axle if axle.any() else np.ones(len(self.groups), bool)
-        return self.channel_band[:, pick].max(axis=1).astype(np.float64)
 
     def on_rails(self, channels: tuple[str, ...], mirrored: bool) -> NDArray[np.float64]:
         """(n, len(channels)): column j the score of the channel that was over channel j's
@@ -265,8 +256,8 @@ def _read_profile(path: Path) -> ScoreProfile | None:
                                    else np.asarray(weld[0], dtype=float),
                                    weld_z=None if weld is None
                                    else np.asarray(weld[1], np.float32).reshape(-1, 2),
-                                   channel_band=None if band is None
-                                   else np.asarray(band, np.float32))
+                                   low_band=None if band is None
+                                   else np.asarray(band, np.float32).reshape(-1))
     except (OSError, ValueError, KeyError) as e:
         raise RailwatchError(f"{path} is damaged ({e}): remove it and its .scan.json, then "
                              "scan again") from None
@@ -274,8 +265,7 @@ def _read_profile(path: Path) -> ScoreProfile | None:
             len(profile.weld_z) != len(profile.weld_position):
         raise RailwatchError(f"{path} is damaged (its weld test does not match its positions): "
                              "remove it and its .scan.json, then scan again")
-    if profile.channel_band is not None and \
-            profile.channel_band.shape != profile.channel_score.shape:
+    if profile.low_band is not None and len(profile.low_band) != len(profile.position):
         raise RailwatchError(f"{path} is damaged (its low band does not match its scores): "
                              "remove it and its .scan.json, then scan again")
     if profile.channel_score.shape != (len(profile.position), len(profile.channels)):

@@ -210,8 +210,8 @@ def fused_map(passes: list[PassEvents], tolerance_m: float = 2.0,
     fused.sides = rule
     point = [np.nanmax(pg, axis=1) for pg in per_group]
     fused.pass_x, fused.pass_score = xs, point
-    bands = [pr.band() for pr in profiles]
-    fused.pass_band = [b for b in bands if b is not None] if all(
+    bands = [pr.low_band for pr in profiles]
+    fused.pass_band = [b.astype(np.float64) for b in bands if b is not None] if all(
         b is not None for b in bands) else []
     events_at = [a + b * p.position for p, (a, b) in zip(passes, transforms, strict=True)]
     found: list[dict[str, Any]] = []

@@ -27,7 +27,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from railwatch.detection import pipeline, welds
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import Layout
+from railwatch.recordings.prepare import AXLE_GROUPS
 from railwatch.recordings.readers import Recording, iso_time, recording_route, recording_start
 from railwatch.trackmap import trends
 from railwatch.trackmap.folder import (
@@ -234,16 +235,26 @@ def _scan_one(path: Path, model: str, layout: dict[str, Any], threshold: float |
 
 def band_at(rec: Recording, time_s: NDArray[np.float64]) -> NDArray[np.float32] | None:
     """The recording's low band (``trends.low_band``) at the profile's sample times ``time_s``
-    (its own samples where they are one to one, as at field scale); None where it has none."""
-    if rec.layout.fs < trends.BAND_RATE * trends.BAND_HZ:
+    ((n,): the highest over the axle-box group's channels, every channel's where no group is
+    one; its own samples where they are one to one, as at field scale); None where the rate
+    keeps none."""
+    lay = rec.layout
+    if lay.fs < trends.BAND_RATE * trends.BAND_HZ:
         return None
-    chunk = rec.read()
-    band = trends.low_band(chunk.data, rec.layout.fs)
-    if band is None or len(band) == len(time_s):
-        return band
-    at = chunk.time if chunk.time is not None else np.arange(len(band)) / rec.layout.fs
-    return np.stack([np.interp(time_s, at, band[:, c]) for c in range(band.shape[1])],
-                    axis=1).astype(np.float32)
+    axle = [(c, g) for c, g in zip(lay.channels, lay.groups, strict=True)
+            if g.lower() in AXLE_GROUPS]
+    if axle:
+        lay = replace(lay, channels=tuple(c for c, _ in axle), groups=tuple(g for _, g in axle))
+    chunk = Recording(rec.path, lay).read()
+    band = trends.low_band(chunk.data, lay.fs)
+    if band is None:
+        return None
+    top = np.nanmax(np.where(np.isnan(band), -np.inf, band), axis=1)
+    top[~np.isfinite(top)] = np.nan
+    if len(top) == len(time_s):
+        return top.astype(np.float32)
+    at = chunk.time if chunk.time is not None else np.arange(len(top)) / lay.fs
+    return np.interp(time_s, at, top).astype(np.float32)
 
 
 def _combine(out: Path, names: list[str]) -> tuple[int, float]:
