@@ -24,7 +24,7 @@ from pathlib import Path
 
 from railwatch.atomic import atomic_csv
 from railwatch.errors import RailwatchError
-from railwatch.trackmap import learned
+from railwatch.trackmap import learned, trends
 from railwatch.trackmap.assets import UNEXPLAINED, Labelled, Register, Response, apply, write_assets
 from railwatch.trackmap.folder import Location, PassEvents, write_map
 from railwatch.trackmap.learned import Proposed
@@ -174,7 +174,9 @@ def growing_said(made: TrackMap, done: Plan) -> str:
         growing = [p.rank for p in made.reported if p.growing == "yes"]
         text += (f"{len(growing)} reported place{'s' if len(growing) != 1 else ''} growing"
                  + (f" (ranks {', '.join(map(str, growing[:8]))}"
-                    f"{' ...' if len(growing) > 8 else ''})" if growing else "") + "; ")
+                    f"{' ...' if len(growing) > 8 else ''})" if growing else "")
+                 + (f", by the {trends.unit(made.fused)}" if made.fused is not None else "")
+                 + "; ")
     n = len(done.items)
     return text + f"work list: {n} place{'s' if n != 1 else ''}" + (
         f", {sum(it.tier == 1 for it in done.items)} growing" if done.has_trends else "")
