@@ -9,8 +9,8 @@ defaults, `scan` of passes 3-12, ten weeks), `track-map` with the line's registe
 track.assets.csv`). The trend's rule was developed on lines 500 and 504-506 (the per-place
 speed slope, the flag's p: docs/maintenance.md); lines 501-503 are test lines, nothing chosen
 on them; lines 510-511 are made differently (a slow line, 8-15 m/s, its passes a fortnight
-apart: twenty weeks), and lines 520-521 (recorded at 1 kHz instead of 2). A defect is on the map when a reported place lies within 5 m of it
-(odometry alone). Measured:
+apart: twenty weeks), and lines 520-521 (recorded at 1 kHz instead of 2). A defect is on the
+map when a reported place lies within 5 m of it (odometry alone). Measured:
 
 1. **Growing**: of the squats on the map that grew by half or more (`growth` >= 1.5 in
    `track.defects.csv`), the share flagged `growing`; and of those that grew less (1.2-1.5);

@@ -52,6 +52,17 @@ def flagged(centres, xs, scores, times, started) -> list[trends.Trend]:  # type:
     return [trends.trend(row, t, speed) for row, speed in zip(y, v, strict=True)]
 
 
+def date_passes(folder, n: int) -> None:  # type: ignore[no-untyped-def]
+    """Date the ``n`` passes of a scan folder three days apart from 2026-01-05."""
+    import json
+
+    for j in range(n):
+        info_path = folder / f"pass{j:02d}.scan.json"
+        info = json.loads(info_path.read_text())
+        info["started"] = f"2026-01-{5 + 3 * j:02d}T06:00:00Z"
+        info_path.write_text(json.dumps(info))
+
+
 def test_days_from_the_first_dated_pass() -> None:
     t = trends.days(["2026-01-12T06:00:00Z", None, "2026-01-05T06:00:00Z", "2026-01-05T18:00"])
     assert t[0] == 7.0 and np.isnan(t[1]) and t[2] == 0.0 and t[3] == 0.5
@@ -104,7 +115,6 @@ def test_track_map_over_dated_passes(tmp_path, capsys) -> None:  # type: ignore[
     """Dated scans: the map's places carry their trend, MAP.passes.csv their strength per pass;
     a defect that deepens pass after pass is growing, the others are not."""
     import csv
-    import json
 
     from railwatch.cli import main
     from support import scan_folder
@@ -122,11 +132,7 @@ def test_track_map_over_dated_passes(tmp_path, capsys) -> None:  # type: ignore[
         xs.append(x)
         scores.append(s)
     scan_folder(tmp_path, xs, scores, defects)
-    for j in range(8):
-        info_path = tmp_path / f"pass{j:02d}.scan.json"
-        info = json.loads(info_path.read_text())
-        info["started"] = f"2026-01-{5 + 3 * j:02d}T06:00:00Z"
-        info_path.write_text(json.dumps(info))
+    date_passes(tmp_path, 8)
     out = tmp_path / "m.csv"
     assert main(["track-map", "--events", str(tmp_path), "--out", str(out)]) == 0
     err = capsys.readouterr().err
@@ -160,7 +166,6 @@ def test_the_trend_reads_the_low_band_where_the_scan_kept_it(tmp_path) -> None: 
     """The scores stay level at every defect; the low band grows three times at one: with the
     band kept, that place alone is growing; without it, none is."""
     import csv
-    import json
 
     from railwatch.cli import main
     from support import scan_folder
@@ -183,11 +188,8 @@ def test_the_trend_reads_the_low_band_where_the_scan_kept_it(tmp_path) -> None: 
         folder = tmp_path / f"band{with_band}"
         folder.mkdir()
         scan_folder(folder, xs, scores, defects)
+        date_passes(folder, 8)
         for j in range(8):
-            info_path = folder / f"pass{j:02d}.scan.json"
-            info = json.loads(info_path.read_text())
-            info["started"] = f"2026-01-{5 + 3 * j:02d}T06:00:00Z"
-            info_path.write_text(json.dumps(info))
             if with_band:
                 path = folder / f"pass{j:02d}.profile.npz"
                 with np.load(path) as f:
