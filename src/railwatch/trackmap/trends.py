@@ -150,9 +150,12 @@ def unit(fused: Fused) -> str:
     return f"low band (|acceleration| below {BAND_HZ:.0f} Hz)" if fused.pass_band else "score"
 
 
-def adjusted(strength: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Log strengths less each pass's own offset (module docstring, step 1)."""
+def adjusted(strength: NDArray[np.float64], per_pass: bool = True) -> NDArray[np.float64]:
+    """Log strengths less each pass's own offset (module docstring, step 1; ``per_pass``
+    False: the log strengths as they are, for the low band)."""
     y = np.log(np.maximum(strength, FLOOR))
+    if not per_pass:
+        return y
     with warnings.catch_warnings():  # rows or columns without a value
         warnings.simplefilter("ignore", RuntimeWarning)
         centred = y - np.nanmedian(y, axis=1, keepdims=True)
@@ -216,7 +219,7 @@ def with_trends(places: list[Location], passes: list[PassEvents], fused: Fused,
         return Dated(places, [])
     s, v = strengths(np.stack([centres - reach_m, centres + reach_m], axis=1), fused.pass_x,
                      measured(fused), times)
-    y = np.log(np.maximum(s, FLOOR)) if fused.pass_band else adjusted(s)
+    y = adjusted(s, per_pass=not fused.pass_band)
     out, rows = [], []
     for i, place in enumerate(places):
         tr = trend(y[i], t, v[i])
