@@ -4,11 +4,20 @@ and write docs/results/recordings/recordings-nuisance.md (+ a figure of the wors
 
 The runs come from `railwatch generate-run --stage {5,8} --loud-stretches` (HF bursts at rough
 spots of the track and wheel-periodic impulses at stage 8, sections of 200-1500 m with 2-4x the
-noise). Every trio counts, not the best one: the issue's target is >= 90 % of defects within
-+-0.25 s and <= 0.2 false events per minute in each. `detect` runs on one core (taskset, one
+noise). Every trio counts, not the best one: the target (issue 29) is, in each, defects
+within +-0.25 s found within 5 points of the oracle's bound, <= 0.2 false events per minute, the
+loud track's false rate at most twice the quiet track's. `detect` runs on one core (taskset, one
 thread) and its whole command is timed (start-up, reading, resampling, scoring, events).
 
-Run: `make bench-recordings-nuisance` (about 20 minutes on 2 cores for two detectors).
+Beside each detector stands the **oracle** (`railwatch.detection.oracle`): it knows each run's
+clean signal (sinusoids, bursts, impulses) and noise level, whitens the run with them and
+streams it through `detect`'s pipeline with the window oracle's GLR test. Its threshold comes
+from white noise (0.2 false events per minute), its bound from the test run as the detectors'
+bound does. A second table runs it on the test runs of stages 5-8 with and without loud
+stretches: what each nuisance costs what the data allow.
+
+Run: `make bench-recordings-nuisance` (about 25 minutes on 2 cores for two detectors, 7 when
+their models are kept in `--work`).
 `--detectors matched-filter,matched-filter-wheel` measures the matched filter without and with
 `train --wheel-comb` (about 5 minutes).
 """
@@ -24,20 +33,45 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import command, match, railwatch
+from railwatch.atomic import atomic_csv
+from railwatch.detection.oracle import null_threshold, oracle_events
+from railwatch.synthetic.runs import DEFECT_FIELDS, synthesize_run
 
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
 PAGE = "docs/results/recordings/recordings-nuisance.md"
-MINUTES = 20
+MINUTES = 25
 
 KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
          "stage 8": ["--stage", "8", "--loud-stretches"]}
 TRIOS = ((1, 2, 3), (4, 5, 6), (7, 8, 9))  # train, train, detect
 RUN_MINUTES = 10  # each run's length
-TARGET_FOUND, TARGET_FALSE = 0.90, 0.2
+#: Issue targets, per trio: found within TARGET_GAP of the oracle's bound, at most TARGET_FALSE
+#: false events per minute, loud track at most TARGET_LOUD times quiet track's false rate.
+TARGET_GAP, TARGET_FALSE, TARGET_LOUD, TARGET_RTF = 0.05, 0.2, 2.0, 100.0
+FS = 2000.0  # `generate-run`'s rate
 #: Labels that train a registry detector with `train` flags (as in benchmarks/track_map.py).
 TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
+
+
+def oracle_row(work: Path, stage: int, loud: bool, seed: int,  # type: ignore[type-arg]
+               threshold: float, noise: str = "known") -> dict:
+    """The oracle on the run of ``stage``, ``seed`` (remade with its components, its defects
+    written to ``work``): its events above ``threshold`` (:func:`null_threshold`), its bound,
+    and, with ``loud`` stretches, the split by loud and quiet track; ``noise``: known, or
+    estimated from the residual (`railwatch.detection.oracle.local_std`)."""
+    run = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=FS, stage=stage, loud_stretches=loud,
+                         components=True)
+    truth = work / f"oracle-stage{stage}{'-loud' if loud else ''}-seed{seed}.defects.csv"
+    atomic_csv(truth, DEFECT_FIELDS, run.defects)
+    low = [e.to_dict() for e in oracle_events(run, threshold=1.0, noise=noise)]
+    events = [e for e in low if e["score"] >= threshold]
+    found, false, channel = match(events, truth)
+    return {"detector": "oracle", "found": found, "false_min": false / RUN_MINUTES,
+            "channel": channel, "events": len(events), "threshold": threshold,
+            "bound": best_at_false_rate(low, truth, TARGET_FALSE), "fit_s": float("nan"),
+            "rtf": float("nan"), **(by_stretch(events, truth, stage, seed) if loud else {})}
 
 
 def run_file(work: Path, kind: str, seed: int) -> Path:
@@ -70,16 +104,13 @@ def best_at_false_rate(events: list[dict], truth: Path,  # type: ignore[type-arg
     return best
 
 
-def by_stretch(events: list[dict], truth: Path, kind: str,  # type: ignore[type-arg]
+def by_stretch(events: list[dict], truth: Path, stage: int,  # type: ignore[type-arg]
                seed: int) -> dict[str, float]:
     """Defects found and false events per minute inside the loud stretches and outside them
     (the stretches re-drawn from the run's seed: they are not in the recording)."""
     import csv
 
-    from railwatch.synthetic.runs import synthesize_run
-
     fs = 200.0  # the stretches depend on the track position only, not on the rate
-    stage = int(KINDS[kind][1])
     loud = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage, loud_stretches=True)
     quiet = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage)
     # white noise differs only on rough sections; bursts, impulses and defects cancel
@@ -116,20 +147,30 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     from railwatch.detection.pipeline import read_events
 
-    rows = []
-    for det in args.detectors.split(","):
+    null = null_threshold(TARGET_FALSE, FS)
+    rows = [{**oracle_row(work, int(KINDS[kind][1]), True, trio[2], null), "kind": kind,
+             "trio": trio} for kind in KINDS for trio in TRIOS]
+    oracle = {(r["kind"], r["trio"]): r for r in rows}
+    null_est = null_threshold(TARGET_FALSE, FS, noise="estimated")
+    ablation = {(stage, loud, noise, trio[2]): oracle_row(
+        work, stage, loud, trio[2], null if noise == "known" else null_est, noise)
+        for stage in (5, 6, 7, 8) for loud in (False, True) for noise in ("known", "estimated")
+        for trio in TRIOS}
+    print("oracle done", file=sys.stderr, flush=True)
+    for det in [d for d in args.detectors.split(",") if d]:
         for kind in KINDS:
             for trio in TRIOS:
                 a, b, c = (run_file(work, kind, s) for s in trio)
                 model = work / f"model-{det}-{kind.replace(' ', '')}-{trio[0]}{trio[1]}"
                 sets = [x for kv in args.set for x in ("--set", kv)]
-                fit_s = float("nan")
+                timed = model.with_name(model.name + ".fit_s")  # kept beside a kept model
                 if not model.exists():
                     name, flags = TRAIN_FLAGS.get(det, (det, ()))
-                    fit_s = railwatch("train", "--detector", name, *flags, "--recordings",
-                                      str(a), str(b), "--layout",
-                                      str(a.with_suffix(".layout.toml")), "--out",
-                                      str(model), *sets).wall_s
+                    timed.write_text(repr(railwatch(
+                        "train", "--detector", name, *flags, "--recordings", str(a), str(b),
+                        "--layout", str(a.with_suffix(".layout.toml")), "--out", str(model),
+                        *sets).wall_s))
+                fit_s = float(timed.read_text()) if timed.exists() else float("nan")
                 events_path = work / f"events-{model.name}-seed{trio[2]}.csv"
                 wall = railwatch("detect", "--model", str(model), "--recording", str(c),
                                  "--out", str(events_path), one_core=True).wall_s
@@ -141,7 +182,7 @@ def main() -> None:
                 railwatch("detect", "--model", str(model), "--recording", str(c), "--out",
                           str(low_path), "--threshold", repr(threshold / 2))
                 bound = best_at_false_rate(read_events(low_path), truth, TARGET_FALSE)
-                split = by_stretch(events, truth, kind, trio[2])
+                split = by_stretch(events, truth, int(KINDS[kind][1]), trio[2])
                 rows.append({"detector": det, "kind": kind, "trio": trio, "fit_s": fit_s,
                              "rtf": RUN_MINUTES * 60 / wall, "found": found,
                              "false_min": false / RUN_MINUTES, "channel": channel,
@@ -149,14 +190,29 @@ def main() -> None:
                              "threshold": threshold, "bound": bound, **split})
                 print(rows[-1], file=sys.stderr, flush=True)
 
-    worst = min(rows, key=lambda r: (r["detector"] != rows[0]["detector"], r["found"]))
+    detected = [r for r in rows if r["detector"] != "oracle"]
     figure = Path(args.out).with_suffix(".png")
-    railwatch("detect", "--model", str(worst["model"]), "--recording", str(worst["test"]),
-              "--out", str(work / "worst.csv"), "--plot", str(figure),
-              "--truth", str(worst["test"].with_suffix(".defects.csv")))
+    if detected:
+        worst = min(detected, key=lambda r: (r["detector"] != detected[0]["detector"],
+                                             r["found"]))
+        railwatch("detect", "--model", str(worst["model"]), "--recording", str(worst["test"]),
+                  "--out", str(work / "worst.csv"), "--plot", str(figure),
+                  "--truth", str(worst["test"].with_suffix(".defects.csv")))
 
     from railwatch.machine import cpu_name
     from railwatch.report.pages import write_markdown
+
+    def pct(x: float) -> str:
+        return "–" if np.isnan(x) else f"{x:.0%}"
+
+    def met(r: dict) -> str:  # type: ignore[type-arg]
+        if r["detector"] == "oracle":
+            return "–"
+        ceiling = oracle[(r["kind"], r["trio"])]["bound"][0]
+        ok = (r["found"] >= ceiling - TARGET_GAP and r["false_min"] <= TARGET_FALSE
+              and r["false_loud"] <= TARGET_LOUD * max(r["false_quiet"], 1.0 / RUN_MINUTES)
+              and r["rtf"] >= TARGET_RTF)
+        return "yes" if ok else "no"
 
     sets = f" with `--set {' --set '.join(args.set)}`" if args.set else ""
     lines = [
@@ -170,33 +226,43 @@ def main() -> None:
         "two 10-minute runs and detecting on a third, per seed trio (train, train, detect). Runs: "
         "`railwatch generate-run --stage 5|8 --loud-stretches` (stage 8: HF bursts at rough spots "
         "of the track, wheel-periodic impulses; both: sections of 200-1500 m with 2-4x the "
-        "noise). Target (every trio): >= 90 % of defects within +-0.25 s, <= 0.2 false events "
-        "per minute, `detect` >= 100x real time on one core.", "",
+        "noise). A defect is found by an event whose peak lies within +-0.25 s of it. A "
+        "model kept in the work folder is not trained again: its fit time is the one measured "
+        "when it was trained (kept beside it).", "",
+        "**The oracle** knows each run's clean signal (sinusoids, bursts, impulses) and noise "
+        "level: it whitens the run with them and streams it through `detect`'s pipeline (the "
+        "same resampling to 100 Hz, 2-s windows, merging into events), scored by the window "
+        "oracle's GLR test (`railwatch.detection.oracle`). Its threshold is the score that "
+        f"white noise streamed the same way crosses {TARGET_FALSE:g} times a minute "
+        f"({null:.2f}): no training, no truth. Its bound is the ceiling of what the "
+        "runs allow a detector at 100 Hz.", "",
+        f"**Target** (every trio): defects found within {TARGET_GAP:.0%} of the oracle's bound "
+        f"on the same run, at most {TARGET_FALSE:g} false events per minute, loud track at most "
+        f"{TARGET_LOUD:g}x quiet track's false rate, `detect` >= {TARGET_RTF:g}x real time on "
+        "one core.", "",
         "| detector | runs | seeds | defects found | false events / min | right channel | "
         "events | threshold | bound: found at <= 0.2 false/min (threshold) | "
         "found: quiet / loud track | false / min: quiet / loud track | fit (s) | "
         "real-time factor, 1 core | target met |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    def pct(x: float) -> str:
-        return "–" if np.isnan(x) else f"{x:.0%}"
-
-    for r in rows:
-        met = (r["found"] >= TARGET_FOUND and r["false_min"] <= TARGET_FALSE
-               and r["rtf"] >= 100)
+    for r in sorted(rows, key=lambda r: r["detector"] != "oracle"):
         lines.append(
             f"| {r['detector']} | {r['kind']} | {'/'.join(map(str, r['trio']))} | "
             f"{r['found']:.0%} | {r['false_min']:.2f} | {pct(r['channel'])} | {r['events']} | "
             f"{r['threshold']:.3g} | {r['bound'][0]:.0%} ({r['bound'][1]:.3g}) | "
             f"{pct(r['found_quiet'])} / {pct(r['found_loud'])} | "
             f"{r['false_quiet']:.2f} / {r['false_loud']:.2f} | "
-            f"{r['fit_s']:.0f} | {r['rtf']:.0f}× | {'yes' if met else 'no'} |")
-    for det in dict.fromkeys(r["detector"] for r in rows):
-        mine = [r for r in rows if r["detector"] == det]
+            + ("– | – | " if r["detector"] == "oracle" else
+               f"{r['fit_s']:.0f} | {r['rtf']:.0f}× | ") + f"{met(r)} |")
+    for det in dict.fromkeys(r["detector"] for r in detected):
+        mine = [r for r in detected if r["detector"] == det]
+        gap = max(oracle[(r["kind"], r["trio"])]["bound"][0] - r["found"] for r in mine)
         lines.append("")
         lines.append(
             f"`{det}`: worst trio {min(r['found'] for r in mine):.0%} found, "
             f"{max(r['false_min'] for r in mine):.2f} false events per minute at most, "
+            f"{gap * 100:.0f} points below the oracle's bound at most, "
             f"median real-time factor {np.median([r['rtf'] for r in mine]):.0f}×.")
     lines += ["", "Quiet / loud track: the defects and false events on the rough sections "
               f"(about {np.mean([r['loud_share'] for r in rows]):.0%} of each run, 2-4x the "
@@ -204,9 +270,45 @@ def main() -> None:
               "gives the same false-event rate on both.",
               "", "The bound column picks, per trio, the single threshold that finds the most "
               "defects with at most 0.2 false events per minute *on the test run itself*: what "
-              "a perfect threshold rule could reach with these scores, not a result.",
-              "", f"![scores of the worst trio]({figure.name})", "",
-              f"The figure: `{worst['detector']}` on {worst['test'].name} (its worst trio).", ""]
+              "a perfect threshold rule could reach with these scores, not a result. The "
+              "oracle's bound is the ceiling the target is measured against.", ""]
+    seeds = "/".join(str(t[2]) for t in TRIOS)
+    lines += ["## What each nuisance costs the oracle", "",
+              "The oracle's bound (defects found at <= 0.2 false events per minute, threshold "
+              "chosen on the run) on the test runs of each stage, without and with loud "
+              "stretches. Every stage has the noise level that steps every 0.4-1.6 s; stage 6 "
+              "draws the defect's channel by its kind's odds, stage 7 adds HF bursts, stage 8 "
+              "wheel-periodic impulses. The oracle knows the bursts and impulses, so they cost "
+              "it nothing; a loud stretch lowers a defect's signal-to-noise ratio, and that no "
+              "detector can undo.", "",
+              "The oracle that **estimates the noise level** knows the clean signal only: it "
+              "whitens the residual by its root mean square over 0.3 s on either side of each "
+              "sample, 0.2 s away, the greater side (a greatest-of CFAR; "
+              "`railwatch.detection.oracle.local_std`), and its threshold comes from white "
+              "noise whitened the same way "
+              f"({null_est:.2f}). What it loses against the oracle is the cost of not knowing "
+              "the noise level; what a detector loses beyond it is the cost of not knowing the "
+              "clean signal.", "",
+              f"| stage | quiet track: bound (seeds {seeds}) | noise level estimated | "
+              "loud stretches: bound | noise level estimated | loud stretches, the defects on "
+              "them: found at the oracle's threshold |",
+              "|---|---|---|---|---|---|"]
+
+    def each(stage: int, loud: bool, noise: str, key: str) -> str:
+        vals = [ablation[(stage, loud, noise, t[2])][key] for t in TRIOS]
+        return " / ".join(pct(v[0] if isinstance(v, tuple) else v) for v in vals)
+
+    for stage in (5, 6, 7, 8):
+        lines.append(f"| {stage} | {each(stage, False, 'known', 'bound')} | "
+                     f"{each(stage, False, 'estimated', 'bound')} | "
+                     f"{each(stage, True, 'known', 'bound')} | "
+                     f"{each(stage, True, 'estimated', 'bound')} | "
+                     f"{each(stage, True, 'known', 'found_loud')} |")
+    lines += [""]
+    if detected:
+        lines += [f"![scores of the worst trio]({figure.name})", "",
+                  f"The figure: `{worst['detector']}` on {worst['test'].name} (its worst "
+                  "trio).", ""]
     print(write_markdown(args.out, lines), end="")
 
 

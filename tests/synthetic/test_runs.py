@@ -94,3 +94,20 @@ def test_stage_6_draws_defect_channels_by_kind() -> None:
 def test_a_stage_a_run_cannot_carry_is_one_line() -> None:
     with pytest.raises(RailwatchError, match="stage 5, 6, 7 or 8"):
         synthesize_run(10.0, stage=4)
+
+
+def test_components_are_the_run_without_its_white_noise_and_defects() -> None:
+    """``components=True`` keeps the data as they were and adds what the oracle needs: the data
+    less the nuisance and the defects is white noise of the kept std, louder on loud track."""
+    plain = run(stage=8, loud_stretches=True)
+    r = run(stage=8, loud_stretches=True, components=True)
+    assert plain.nuisance is None and plain.noise_std is None
+    np.testing.assert_array_equal(r.data, plain.data)
+    z = (r.data.astype(np.float64) - r.nuisance - _defects(r)) / r.noise_std
+    np.testing.assert_allclose(z.mean(axis=0), 0.0, atol=0.02)
+    np.testing.assert_allclose(z.std(axis=0), 1.0, atol=0.02)
+    # the nuisance holds the impulses (stage 8) and the std the loud stretches
+    assert np.abs(r.nuisance - run(stage=7, components=True).nuisance).max() > 0.1
+    quiet = run(stage=8, components=True)
+    ratio = r.noise_std / quiet.noise_std
+    assert ratio.min() >= 1.0 - 1e-6 and STRETCH_GAIN[0] - 1e-6 <= ratio.max() <= STRETCH_GAIN[1]

@@ -77,6 +77,11 @@ class Run:
     speed: NDArray[np.float64]  # (n,) m/s
     position: NDArray[np.float64]  # (n,) m
     defects: list[dict[str, Any]] = field(default_factory=list)
+    #: With ``synthesize_run(components=True)``: the signal without white noise and defects
+    #: (sinusoids, bursts, impulses) and the white noise's std at every sample (n, 6), as the
+    #: window generator's ``components`` hand them to the oracle.
+    nuisance: NDArray[np.float32] | None = None
+    noise_std: NDArray[np.float32] | None = None
 
     def columns(self) -> dict[str, NDArray[Any]]:
         """The run as named columns: time, speed, position, then the six channels."""
@@ -103,8 +108,10 @@ def synthesize_run(
     deviation_offset: tuple[float, float] = (1.5, 2.0),
     stage: int = 5,
     loud_stretches: bool = False,
+    components: bool = False,
 ) -> Run:
-    """A continuous six-channel run with defects at known times; see the module docstring."""
+    """A continuous six-channel run with defects at known times; see the module docstring.
+    ``components=True`` keeps the run's nuisance signal and noise std (:class:`Run`)."""
     if fs < 100.0:
         raise RailwatchError(f"a run needs fs >= 100 Hz (a spike lasts 0.01 s), got {fs:g}")
     if stage not in RUN_STAGES:
@@ -118,7 +125,8 @@ def synthesize_run(
     scale = speed / MEAN_SPEED
 
     gain = _stretch_gain(stretch_rng, position) if loud_stretches else 1.0
-    data = render(rng, burst_rng, impulse_rng, t, position, scale, gain, stage, fs)
+    parts: dict[str, NDArray[np.float32]] | None = {} if components else None
+    data = render(rng, burst_rng, impulse_rng, t, position, scale, gain, stage, fs, parts)
 
     defects = []
     for at in _defect_times(rng, duration_s, defect_every_s):
@@ -136,7 +144,8 @@ def synthesize_run(
                         "position_m": float(np.interp(at + duration / 2, t, position)),
                         "channel": CHANNELS[c], "group": CHANNEL_GROUPS[c],
                         "kind": "spike" if spike else "deviation", "offset": offset})
-    return Run(fs=fs, data=data, time=t, speed=speed, position=position, defects=defects)
+    return Run(fs=fs, data=data, time=t, speed=speed, position=position, defects=defects,
+               **(parts or {}))
 
 
 def speed_profile(rng: np.random.Generator, duration_s: float,
@@ -152,25 +161,39 @@ def speed_profile(rng: np.random.Generator, duration_s: float,
 def render(rng: np.random.Generator, burst_rng: np.random.Generator,
            impulse_rng: np.random.Generator, t: NDArray[np.float64],
            position: NDArray[np.float64], scale: NDArray[np.float64],
-           gain: NDArray[np.float64] | float, stage: int, fs: float) -> NDArray[np.float32]:
+           gain: NDArray[np.float64] | float, stage: int, fs: float,
+           parts: dict[str, NDArray[np.float32]] | None = None) -> NDArray[np.float32]:
     """The six channels of a run without defects (n, 6): sinusoids scaled by speed, white noise
     of changing level times the track's ``gain``, and from ``stage`` 7 and 8 the bursts and
-    impulses, placed by ``position``, the distance travelled (increasing)."""
+    impulses, placed by ``position``, the distance travelled (increasing). ``parts``, if
+    given, receives ``nuisance`` (all but the white noise) and ``noise_std`` (its std), (n, 6)."""
     n = len(t)
     travel = _travel(scale, fs)
     data = np.empty((n, len(CHANNELS)), np.float32)
+    keep = parts is not None
+    nuisance = np.zeros((n, len(CHANNELS)), np.float32) if keep else None
+    std = np.zeros((n, len(CHANNELS)), np.float32) if keep else None
     for c, group in enumerate(CHANNEL_GROUPS):
         g = GROUPS[group]
         f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
         phase = phi + 2 * np.pi * f * travel
         clean = amp * scale * np.sin(phase)
-        noise = _noise_levels(rng, n, fs, g.sigma, g.d_sigma) * rng.standard_normal(n)
-        data[:, c] = clean + gain * noise
+        level = _noise_levels(rng, n, fs, g.sigma, g.d_sigma)
+        data[:, c] = clean + gain * (level * rng.standard_normal(n))
+        if nuisance is not None and std is not None:
+            nuisance[:, c], std[:, c] = clean, gain * level
     for c, group in enumerate(CHANNEL_GROUPS):
+        added = []
         if stage >= 7:
-            data[:, c] += _bursts(burst_rng, GROUPS[group], position, scale, travel)
+            added.append(_bursts(burst_rng, GROUPS[group], position, scale, travel))
         if stage >= 8:
-            data[:, c] += _impulses(impulse_rng, GROUPS[group], t, position, scale, fs)
+            added.append(_impulses(impulse_rng, GROUPS[group], t, position, scale, fs))
+        for a in added:
+            data[:, c] += a
+            if nuisance is not None:
+                nuisance[:, c] += a
+    if parts is not None and nuisance is not None and std is not None:
+        parts.update(nuisance=nuisance, noise_std=std)
     return data
 
 
