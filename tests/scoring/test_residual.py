@@ -79,3 +79,15 @@ def test_a_box_in_the_loud_part_of_a_stepped_window() -> None:
     assert inst.argmax() == 3 and inst[3] > 4  # p < 1e-4
     one_level = np.median(np.abs(r[3]), axis=0) / R.MAD_NORMAL  # what one level would give
     assert abs(r[3, 40:52, 0].sum()) / np.sqrt(12) / one_level[0] < 4
+
+
+def test_greatest_of_is_the_louder_reference_cell_by_brute_force() -> None:
+    rng = np.random.default_rng(3)
+    sq = rng.exponential(size=(3, 60)) * rng.uniform(0.5, 4.0, size=(3, 1))
+    got = R.greatest_of(sq, guard=4, ref=7)
+    for b in range(3):
+        for t in range(60):
+            cells = [sq[b, max(0, t - 11):max(0, t - 4)], sq[b, t + 5:t + 12]]
+            means = [c.mean() for c in cells if len(c)]
+            assert np.isclose(got[b, t], max(means)) if means else np.isnan(got[b, t])
+    assert np.isnan(R.greatest_of(sq[:, :5], guard=4, ref=7)).all()  # no cell: NaN

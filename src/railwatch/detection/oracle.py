@@ -37,6 +37,7 @@ from railwatch.detectors.api import FloatArray, Scores
 from railwatch.detectors.oracle import Oracle, OracleConfig
 from railwatch.errors import RailwatchError
 from railwatch.recordings.prepare import Preparation, antialias_filter
+from railwatch.scoring.residual import greatest_of
 from railwatch.synthetic.runs import Run
 
 OnSamples = Callable[[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]], None]
@@ -91,19 +92,8 @@ def local_std(e: NDArray[np.floating], fs: float) -> NDArray[np.float64]:
     mean square over :data:`REF_S` on either side, :data:`GUARD_S` away (so that a defect at
     the sample does not raise it), the greater of the two sides (a greatest-of CFAR: next to a
     step in level the louder side sets it), one side at the run's ends."""
-    n = len(e)
     guard, ref = max(1, round(GUARD_S * fs)), max(1, round(REF_S * fs))
-    cum = np.concatenate([np.zeros((1, e.shape[1])), np.cumsum(np.square(e, dtype=np.float64),
-                                                               axis=0)])
-    i = np.arange(n)
-
-    def mean(lo: NDArray[np.int64], hi: NDArray[np.int64]) -> NDArray[np.float64]:
-        lo, hi = np.clip(lo, 0, n), np.clip(hi, 0, n)
-        k = (hi - lo)[:, None]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(k > 0, (cum[hi] - cum[lo]) / np.maximum(k, 1), np.nan)
-
-    var = np.fmax(mean(i - guard - ref, i - guard), mean(i + guard + 1, i + guard + 1 + ref))
+    var = greatest_of(np.square(e, dtype=np.float64).T, guard, ref).T
     return np.sqrt(np.where(np.isfinite(var) & (var > 0), var, np.nanmedian(var)))
 
 

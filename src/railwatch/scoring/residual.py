@@ -84,6 +84,28 @@ def changepoint_scale(residual: NDArray[np.floating], min_segment: int = MIN_SEG
     return np.maximum(np.where(before, s1, s2), 1e-12)
 
 
+def greatest_of(sq: NDArray[np.floating], guard: int, ref: int) -> NDArray[np.float64]:
+    """Per sample, the greater mean of ``sq`` (..., T) over the ``ref`` samples on either side
+    that lie more than ``guard`` samples away (one side near the ends; NaN where there is
+    none): a greatest-of CFAR reference of the noise power, which a short anomaly at the
+    sample cannot raise and which, next to a step in level, takes the louder side."""
+    n = sq.shape[-1]
+    cum = np.concatenate([np.zeros((*sq.shape[:-1], 1)), np.cumsum(sq, axis=-1,
+                                                                   dtype=np.float64)], axis=-1)
+    t = np.arange(n)
+
+    def mean(lo: NDArray[np.int64], hi: NDArray[np.int64]) -> NDArray[np.float64]:
+        lo, hi = np.clip(lo, 0, n), np.clip(hi, 0, n)
+        k = hi - lo
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(k > 0, (cum[..., hi] - cum[..., lo]) / np.maximum(k, 1), np.nan)
+
+    left = mean(t - guard - ref, t - guard)
+    right = mean(t + guard + 1, t + guard + 1 + ref)
+    with np.errstate(invalid="ignore"):
+        return np.fmax(left, right)
+
+
 def masked_median(values: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.float64]:
     """Median along axis 1 of the ``mask``ed values, kept as a length-1 axis; NaN where
     none is. The same numbers as ``np.nanmedian`` of the others set to NaN, eight times faster
