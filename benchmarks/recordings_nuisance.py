@@ -286,9 +286,9 @@ def main() -> None:
               "sample, 0.2 s away, the greater side (a greatest-of CFAR; "
               "`railwatch.detection.oracle.local_std`), and its threshold comes from white "
               "noise whitened the same way "
-              f"({null_est:.2f}). What it loses against the oracle is the cost of not knowing "
-              "the noise level; what a detector loses beyond it is the cost of not knowing the "
-              "clean signal.", "",
+              f"({null_est:.2f}). What it loses against the oracle is what not knowing the noise "
+              "level costs; what a detector loses beyond it lies in the detector itself (its "
+              "model of the clean signal, its own estimate of the level).", "",
               f"| stage | quiet track: bound (seeds {seeds}) | noise level estimated | "
               "loud stretches: bound | noise level estimated | loud stretches, the defects on "
               "them: found at the oracle's threshold |",

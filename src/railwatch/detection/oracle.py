@@ -21,7 +21,7 @@ detectors at that rate, not an exact optimum: the anti-alias filter band-limits 
 
 With ``noise="estimated"`` it knows the clean signal only and estimates the noise level from the
 residual around each sample (:func:`local_std`): the gap between the two is what not knowing the
-level costs; what a detector loses beyond the second is what not knowing the signal costs.
+level costs; what a detector loses beyond the second lies in the detector itself.
 """
 
 from __future__ import annotations
