@@ -54,27 +54,21 @@ INPUTS = {"runs": "the runs", "residual": "less the nuisance signal",
 def run_file(work: Path, stage: int, seed: int, what: str) -> Path:
     """The test or training recording of ``stage``, ``seed`` as input ``what`` (:data:`INPUTS`),
     written once to ``work`` with its layout and defects."""
-    from railwatch.atomic import atomic_csv
-    from railwatch.recordings.layout import layout_toml
-    from railwatch.recordings.readers import write_recording
-    from railwatch.synthetic.runs import CHANNELS, DEFECT_FIELDS, Run, synthesize_run
+    from dataclasses import replace
+
+    from railwatch.synthetic.run_files import save_run
+    from railwatch.synthetic.runs import synthesize_run
 
     path = work / f"{what}-stage{stage}-seed{seed}.parquet"
     if path.exists():
         return path
     run = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=FS, stage=stage, loud_stretches=True,
                          components=what != "runs")
-    data = run.data
     if what != "runs":
         assert run.nuisance is not None and run.noise_std is not None
-        data = data - run.nuisance
-        if what == "white":
-            data = data / run.noise_std
-    columns = run.columns()
-    columns.update({c: data[:, i] for i, c in enumerate(CHANNELS)})
-    path.with_suffix(".layout.toml").write_text(layout_toml(Run.layout(FS)))
-    atomic_csv(path.with_suffix(".defects.csv"), DEFECT_FIELDS, run.defects)
-    write_recording(path, columns)
+        data = run.data - run.nuisance
+        run = replace(run, data=data / run.noise_std if what == "white" else data)
+    save_run(path, run)
     return path
 
 

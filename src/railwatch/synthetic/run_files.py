@@ -32,13 +32,20 @@ def write_run(out: str | os.PathLike[str], minutes: float, seed: int = 0, fs: fl
     ``<stem>.layout.toml`` and its true defects to ``<stem>.defects.csv``; returns the run and
     the paths of the layout and of the defects."""
     check_run_settings(out, minutes, every_s, fs)
-    out = Path(out)
     run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s, stage=stage,
                          loud_stretches=loud_stretches)
+    return (run, *save_run(out, run))
+
+
+def save_run(out: str | os.PathLike[str], run: Run) -> tuple[Path, Path]:
+    """Write ``run`` to ``out`` (the extension picks the format), its layout to
+    ``<stem>.layout.toml`` and its true defects to ``<stem>.defects.csv``; returns the paths of
+    the layout and of the defects."""
+    out = Path(out)
     stem = out.with_suffix("")
     layout_path, truth_path = Path(f"{stem}.layout.toml"), Path(f"{stem}.defects.csv")
     with atomic_path(layout_path) as tmp:
-        tmp.write_text(layout_toml(Run.layout(fs)))
+        tmp.write_text(layout_toml(Run.layout(run.fs)))
     atomic_csv(truth_path, DEFECT_FIELDS, run.defects)
     write_recording(out, run.columns())
-    return run, layout_path, truth_path
+    return layout_path, truth_path

@@ -249,8 +249,7 @@ def band_at(rec: Recording, time_s: NDArray[np.float64]) -> NDArray[np.float32] 
     band = trends.low_band(chunk.data, lay.fs)
     if band is None:
         return None
-    top = np.nanmax(np.where(np.isnan(band), -np.inf, band), axis=1)
-    top[~np.isfinite(top)] = np.nan
+    top = np.fmax.reduce(band, axis=1)  # NaN only where every channel is
     if len(top) == len(time_s):
         return top.astype(np.float32)
     at = chunk.time if chunk.time is not None else np.arange(len(top)) / lay.fs
