@@ -65,3 +65,23 @@ def test_detect_a_run(model) -> None:  # type: ignore[no-untyped-def]
     assert result.threshold == threshold and abs(result.duration_s - 30.0) < 0.01
     assert all(e.score > threshold for e in result.events)
     assert result.trace.time and len(result.trace.time) == len(result.trace.score)
+
+
+def test_a_model_that_uses_the_noise_floor(tmp_path: Path) -> None:
+    """nuisance-glr trained on recordings gets their noise floor at training and, saved and
+    read back, again in detect; it finds the run's defects."""
+    write_run(tmp_path / "train.parquet", 2.0, seed=1, fs=2000.0)
+    run, _, _ = write_run(tmp_path / "test.parquet", 1.0, seed=2, fs=2000.0)
+    layout = load_layout(tmp_path / "train.layout.toml")
+    trained = pipeline.train_on_recordings("nuisance-glr", {"null_windows": 2000},
+                                           [tmp_path / "train.parquet"], layout,
+                                           tmp_path / "model",
+                                           progress=False)
+    rm = pipeline.load_recording_model(tmp_path / "model")
+    assert rm.detector.fitted_uses() == ["noise_floor"] and rm.threshold == trained.threshold
+    rec = Recording(tmp_path / "test.parquet", load_layout(tmp_path / "test.layout.toml"))
+    peaks = np.array([e.peak_s for e in pipeline.detect(rm.detector, rec, rm.preparation).events])
+    centres = np.array([d["center_s"] for d in run.defects])
+    found = np.mean([np.any(np.abs(peaks - c) <= 0.25) for c in centres])
+    false = sum(not np.any(np.abs(centres - p) <= 0.25) for p in peaks)
+    assert found >= 0.8 and false <= 4, (found, false)  # 1 minute; 0.6 per minute of null

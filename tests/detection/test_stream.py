@@ -181,3 +181,33 @@ def test_stream_errors(tiny) -> None:  # type: ignore[no-untyped-def]
     assert short.close() == []  # closed: the padded tail is not scored again
     with pytest.raises(RailwatchError, match="closed"):
         short.push(raw[:20])
+
+
+def test_the_noise_floor_travels_with_the_windows() -> None:
+    """A detector that uses the noise floor gets, in the stream, the floor of each window's
+    samples: block by block the same scores as the resampled recording and its floor framed at
+    once (2 kHz to 100 Hz)."""
+    from railwatch.recordings.floor import NOISE_FLOOR, noise_floor
+
+    raw = recording(2000.0)
+    layout = Layout(fs=2000.0, channels=("x", "y"), groups=("axle", "body"))
+    prep = Preparation(rate=100.0, window_s=1.0, train_hop_s=0.5, detect_hop_s=0.5)
+    signal, floor = resample(raw, 1, 20), noise_floor(raw, 1, 20)
+    assert len(floor) == len(signal)
+    windows, starts = frame(signal, 100, 50)
+    floors = frame(floor, 100, 50)[0]
+    det = create("nuisance-glr", {"null_windows": 2000}).fit(windows, {NOISE_FLOOR: floors})
+    traces: list[np.ndarray] = []
+    stream = StreamingDetector(det, layout, prep, threshold=np.inf,
+                               on_samples=lambda t, p, c, pos: traces.append(p))
+    rng, i = np.random.default_rng(5), 0
+    while i < len(raw):
+        n = int(rng.integers(1, 4000))
+        stream.push(raw[i:i + n])
+        i += n
+    stream.close()
+    point = det.score(windows, {NOISE_FLOOR: floors}).point
+    brute = np.full(len(signal), -np.inf)
+    for s, p in zip(starts, point, strict=True):
+        brute[s:s + 100] = np.maximum(brute[s:s + 100], p)
+    np.testing.assert_allclose(np.concatenate(traces), brute, rtol=1e-4, atol=1e-4)

@@ -23,12 +23,13 @@ from numpy.typing import NDArray
 
 from railwatch.atomic import atomic_path
 from railwatch.detection import welds
-from railwatch.detection.stream import Event, StreamingDetector
+from railwatch.detection.stream import Event, StreamingDetector, uses_floor
 from railwatch.detectors import model_folder
 from railwatch.detectors.api import Detector
 from railwatch.detectors.registry import load_detector
 from railwatch.errors import RailwatchError, one_line
 from railwatch.recordings import rails, wheel
+from railwatch.recordings.floor import NOISE_FLOOR, NoiseFloor
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, frame
 from railwatch.recordings.readers import CHUNK_ROWS, Chunk, Recording
@@ -52,16 +53,28 @@ def prepared_chunks(recording: Recording, prep: Preparation, rows: int = CHUNK_R
 def training_windows(recordings: Sequence[Recording], prep: Preparation,
                      progress: Callable[[int], None] | None = None) -> NDArray[np.float32]:
     """Windows (N, T, C) of every recording: resampled, framed every ``train_hop_s``."""
-    out = []
+    return training_set(recordings, prep, progress)[0]
+
+
+def training_set(recordings: Sequence[Recording], prep: Preparation,
+                 progress: Callable[[int], None] | None = None, floor: bool = False
+                 ) -> tuple[NDArray[np.float32], dict[str, NDArray[np.float32]]]:
+    """:func:`training_windows` and the side arrays a detector takes with them: with ``floor``,
+    the windows' noise floor (:mod:`railwatch.recordings.floor`), measured in the same pass."""
+    out: list[NDArray[np.float32]] = []
+    floors: list[NDArray[np.float32]] = []
     for rec in recordings:
         layout = rec.layout
         fs = prep.output_rate(layout.fs)
         window = prep.samples(prep.window_s, layout.fs, "the window")
         hop = prep.samples(prep.train_hop_s, layout.fs, "the training hop")
         resampler = Resampler(*prep.ratio(layout.fs), len(layout.channels))
-        parts = []
+        meter = NoiseFloor(*prep.ratio(layout.fs), len(layout.channels)) if floor else None
+        parts, floor_parts = [], []
         for chunk in prepared_chunks(rec, prep):
             parts.append(resampler.push(chunk.data))
+            if meter is not None:
+                floor_parts.append(meter.push(chunk.data))
             if progress:
                 progress(len(chunk))
         parts.append(resampler.flush())
@@ -70,7 +83,11 @@ def training_windows(recordings: Sequence[Recording], prep: Preparation,
             raise RailwatchError(f"{rec.path} lasts {len(signal) / fs:.2f} s, shorter than one "
                                  f"{prep.window_s:g}-s window")
         out.append(frame(signal, window, hop, cover_end=False)[0])
-    return np.concatenate(out)
+        if meter is not None:
+            level = np.concatenate([*floor_parts, meter.flush()])
+            floors.append(frame(level, window, hop, cover_end=False)[0].astype(np.float32))
+    context = {NOISE_FLOOR: np.concatenate(floors)} if floor else {}
+    return np.concatenate(out), context
 
 
 #: Windows of normal recording per minute above the event threshold, by the null of the
@@ -139,13 +156,14 @@ def recording_info(layout: Layout, prep: Preparation,
 def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layout,
                         prep: Preparation, out: str | os.PathLike[str],
                         rule: ThresholdRule | None = None,
-                        response: rails.AxleResponse | None = None) -> float:
+                        response: rails.AxleResponse | None = None,
+                        context: dict[str, NDArray[np.float32]] | None = None) -> float:
     """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set its
     threshold by ``rule`` (default :func:`event_threshold` at the layout scale's rate) and save
     the model folder with ``recording.json`` (and the axle boxes' ``response``, if any);
-    returns the threshold."""
+    ``context``: the windows' side arrays (:func:`training_set`); returns the threshold."""
     rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
-    detector.fit(X)
+    detector.fit(X, context)
     threshold = detector.set_threshold(rule)
     detector.save(out, extra_files=recording_info(layout, prep, rule, response))
     return threshold
@@ -210,8 +228,9 @@ def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Pa
     sources = [Recording(p, layout) for p in paths]
     total = sum(r.duration_s for r in sources)
     with seconds_of_recording(total, "reading", progress) as bar:
-        X = training_windows(sources, prep,
-                             progress=lambda n: bar.update(round(n / layout.fs, 3)))
+        X, context = training_set(sources, prep,
+                                  progress=lambda n: bar.update(round(n / layout.fs, 3)),
+                                  floor=uses_floor(detector, prep, layout.fs))
     if progress:
         say(f"{len(X):,} windows of {X.shape[1]} samples x {X.shape[2]} channels from "
             f"{len(paths)} recording(s), {total / 60:.1f} min; training {name}")
@@ -225,7 +244,7 @@ def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Pa
                 "track-map)")
         except RailwatchError as e:
             say(f"no weld test: {e}")
-    threshold = fit_recording_model(detector, X, layout, prep, out, rule, response)
+    threshold = fit_recording_model(detector, X, layout, prep, out, rule, response, context)
     return Trained(threshold, per_minute, tuple(X.shape), total / 60, mine, response)
 
 

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from railwatch.detectors.api import Detector
 from railwatch.errors import RailwatchError
+from railwatch.recordings.floor import NOISE_FLOOR, NoiseFloor
 from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, Resampler, gather_windows
 from railwatch.recordings.readers import Chunk
@@ -140,6 +141,14 @@ class EventTracker:
                      threshold=self.threshold, position_m=ev["position"])
 
 
+def uses_floor(detector: Detector, preparation: Preparation, fs: float) -> bool:
+    """Whether ``detector`` is handed the noise floor of recordings at ``fs``: it uses one (a
+    fitted detector: it was fitted with one), and the preparation resamples (at a recording's
+    own rate no band is dropped to measure it)."""
+    uses = detector.fitted_uses() if hasattr(detector, "stats_") else detector.uses
+    return NOISE_FLOOR in uses and preparation.ratio(fs) != (1, 1)
+
+
 class StreamingDetector:
     """Score a recording block by block; see the module docstring.
 
@@ -181,6 +190,12 @@ class StreamingDetector:
                                     layout.channels, layout.groups)
         self.on_samples, self.on_centres = on_samples, on_centres
         self.resampler = Resampler(self.up, self.down, n_channels)
+        #: The noise floor of the band the resampling drops, for a detector that uses it
+        #: (:mod:`railwatch.recordings.floor`): one row per resampled sample, as ``samples``.
+        self.meter = NoiseFloor(self.up, self.down, n_channels) \
+            if uses_floor(detector, preparation, layout.fs) else None
+        self.floor = np.zeros((0, n_channels))
+        self.pending_floor = np.zeros((0, n_channels))
         self.n_in = 0  # raw samples received
         self.distance = 0.0  # integrated speed (m) up to raw sample n_in
         self.t0: float | None = None  # time of raw sample 0 (time column), else 0
@@ -210,6 +225,8 @@ class StreamingDetector:
         if not np.isfinite(data).all():
             raise RailwatchError(f"non-finite sample in the block starting at sample {self.n_in}")
         self._collect_aux(chunk)
+        if self.meter is not None:
+            self.pending_floor = np.concatenate([self.pending_floor, self.meter.push(data)])
         return self._advance(self.resampler.push(data), end=False)
 
     def close(self) -> list[Event]:
@@ -217,6 +234,8 @@ class StreamingDetector:
         if self.closed:
             return []
         self.closed = True  # even if the tail fails: its padding must not be scored twice
+        if self.meter is not None:
+            self.pending_floor = np.concatenate([self.pending_floor, self.meter.flush()])
         events = self._advance(self.resampler.flush(), end=True)
         return events + self.tracker.close()
 
@@ -252,6 +271,9 @@ class StreamingDetector:
             self.aux = np.concatenate([self.aux, aux[:len(out)]])
             self.pending_aux = [aux[len(out):]]
             self.samples = np.concatenate([self.samples, out])
+            if self.meter is not None:  # the floor runs ahead of the resampler's delay
+                self.floor = np.concatenate([self.floor, self.pending_floor[:len(out)]])
+                self.pending_floor = self.pending_floor[len(out):]
             self.point = np.concatenate([self.point, np.full(len(out), -np.inf)])
             self.channel = np.concatenate([self.channel,
                                            np.full((len(out), self.channel.shape[1]), -np.inf)])
@@ -269,9 +291,11 @@ class StreamingDetector:
                 # again if it was the previous block's last: then it did not know it was).
                 starts.append(n_out - self.window)
         if starts:
-            windows = gather_windows(self.samples, np.asarray(starts) - self.buf_start,
-                                     self.window)
-            scores = self.detector.score(windows)
+            at = np.asarray(starts) - self.buf_start
+            windows = gather_windows(self.samples, at, self.window)
+            context = None if self.meter is None else \
+                {NOISE_FLOOR: gather_windows(self.floor, at, self.window)}
+            scores = self.detector.score(windows, context)
             merge_max(self.point, scores.point, np.asarray(starts), self.final)
             merge_max(self.channel, scores.channel, np.asarray(starts), self.final)
             self.owned = assign_centres(self.centre, scores.channel, np.asarray(starts),
@@ -300,5 +324,7 @@ class StreamingDetector:
         # Needed by later windows, and by the last window again if the recording ends there.
         keep = max(0, min(self.final, self.next_window - self.hop) - self.buf_start)
         self.samples, self.aux = self.samples[keep:], self.aux[keep:]
+        if self.meter is not None:
+            self.floor = self.floor[keep:]
         self.buf_start += keep
         return events

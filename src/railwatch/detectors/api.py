@@ -180,7 +180,8 @@ class Detector(ABC):
     ``Config`` (its config dataclass), ``normalize`` (per-channel standardisation of inputs from
     training statistics, default on), ``fixed_length`` (scoring needs the fitted window length),
     ``needs`` (names of side arrays, e.g. the oracle's generator components, that ``fit`` and
-    ``score`` must receive in ``context``); the property ``report_maps`` (the score comes with
+    ``score`` must receive in ``context``), ``uses`` (side arrays it takes when given, such as
+    the recording's noise floor); the property ``report_maps`` (the score comes with
     maps worth drawing).
     """
 
@@ -188,6 +189,7 @@ class Detector(ABC):
     normalize: ClassVar[bool] = True
     fixed_length: ClassVar[bool] = True
     needs: ClassVar[tuple[str, ...]] = ()
+    uses: ClassVar[tuple[str, ...]] = ()
     #: Config fields that change only how a fitted model scores, not what ``fit`` learns: a
     #: fitted detector switches them with :meth:`rescored` instead of being fitted again.
     scoring_fields: ClassVar[tuple[str, ...]] = ("contamination",)
@@ -223,9 +225,12 @@ class Detector(ABC):
     def fit(self, X: Any, context: Mapping[str, Any] | None = None) -> Detector:
         """Learn from unlabelled windows ``X`` (N, T, C); returns ``self``."""
         X = check_windows(X)
+        self.__dict__.pop("stats_", None)  # fitted again: what it was fitted with goes
         ctx = self._check_context(context, len(X))
         _, self.n_steps_, self.n_channels_ = X.shape
         self.stats_: dict[str, NDArray[Any]] = {}
+        if self.uses:  # which optional side arrays it learned with: scoring must give the same
+            self.stats_["uses"] = np.array([k in ctx for k in self.uses])
         if self.normalize:
             mean = X.mean(axis=(0, 1), dtype=np.float64)
             std = X.std(axis=(0, 1), dtype=np.float64)
@@ -370,6 +375,11 @@ class Detector(ABC):
                 f"{type(self).__name__} is not fitted yet: call fit(X) or load a saved model"
             )
 
+    def fitted_uses(self) -> list[str]:
+        """The optional side arrays (``uses``) this fitted detector learned with."""
+        mask = self.stats_.get("uses", np.zeros(len(self.uses), bool))
+        return [k for k, on in zip(self.uses, np.atleast_1d(mask), strict=False) if on]
+
     def _check_context(
         self, context: Mapping[str, Any] | None, n: int
     ) -> dict[str, FloatArray]:
@@ -380,8 +390,15 @@ class Detector(ABC):
                 f"{self.registry_name or type(self).__name__} needs {', '.join(missing)} "
                 "(synthetic data generated with --components)"
             )
+        given = [k for k in self.uses if ctx.get(k) is not None]
+        if hasattr(self, "stats_") and given != self.fitted_uses():
+            learned = ", ".join(self.fitted_uses()) or "no side array"
+            raise RailwatchError(
+                f"{self.registry_name or type(self).__name__} was fitted with {learned} but is "
+                f"scored with {', '.join(given) or 'none'}: score it as it was fitted (railwatch "
+                "detect gives a model trained on recordings what it was trained with)")
         out = {}
-        for k in self.needs:
+        for k in (*self.needs, *given):
             arr = np.asarray(ctx[k], dtype=np.float32)
             if len(arr) != n:
                 raise RailwatchError(f"{k} has {len(arr)} windows, X has {n}")
@@ -414,7 +431,7 @@ def verify_restored(det: Detector) -> None:
                     f"the fitted {key} has shape {stats[key].shape}, the model "
                     f"{_plural(det.n_channels_, 'channel')}")
     probe = np.zeros((1, det.n_steps_, det.n_channels_), dtype=np.float32)
-    context = {k: np.ones_like(probe) for k in det.needs}
+    context = {k: np.ones_like(probe) for k in (*det.needs, *det.fitted_uses())}
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")

@@ -62,6 +62,9 @@ REGISTRY: dict[str, Entry] = {
     "context-glr": Entry("railwatch.detectors.context_glr:ContextGLR",
                          "railwatch's own: blind-spot network predicting every sample and its "
                          "noise scale from the context, spike/box GLR scan of the residual"),
+    "nuisance-glr": Entry("railwatch.detectors.nuisance_glr:NuisanceGLR",
+                          "railwatch's own, no network: harmonic model of the vibration, the "
+                          "recording's noise floor, spike/box GLR scan of the residual"),
     "matched-filter": Entry("railwatch.detectors.matched_filter:MatchedFilter",
                             "classical baseline: robust linear predictor + matched filters for "
                             "spikes and 5-20-sample boxes, no network", role="reference"),

@@ -1,0 +1,176 @@
+"""What each part of nuisance-glr recovers on the nuisance runs, stage by stage, beside the
+oracle: the ablation table of `docs/nuisance-glr.md`.
+
+On the runs of `benchmarks/recordings_nuisance.py` (10-minute runs with loud stretches; train on
+two, detect on the third, seed trios 1/2/3, 4/5/6, 7/8/9) of stages 5, 6, 7 and 8, four
+detectors are trained and streamed through `detect`'s pipeline in-process:
+
+1. the matched filter (a robust linear predictor whitens the vibration; its noise level has
+   one change point per window);
+2. nuisance-glr's harmonic model with a noise level that changes at most once per window
+   (trained without the floor, as on windows that were never resampled);
+3. nuisance-glr as it is: the harmonic model and the recording's noise floor;
+4. the oracle (`railwatch.detection.oracle`): the run's clean signal and noise level known.
+
+Each figure is the bound: defects found at <= 0.2 false events per minute by the best threshold
+chosen on the test run. Stage 6 draws the defect's channel by its kind's odds; 7 adds HF bursts;
+8 adds wheel-periodic impulses; every stage has a noise level that steps every 0.4-1.6 s and the
+loud stretches.
+
+Run: `python -m benchmarks nuisance_glr_parts` (about 4 minutes on 2 cores, 8 when it makes the runs; shared
+with `make bench-recordings-nuisance` in the same `--work`); `--held-out --out
+docs/results/recordings/nuisance-glr-parts-held-out.md` on seed trios 11-19, never looked at
+while nuisance-glr's settings were chosen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import command, match
+from benchmarks.recordings_nuisance import (
+    RUN_MINUTES,
+    TARGET_FALSE,
+    TRIOS,
+    best_at_false_rate,
+    by_stretch,
+    oracle_row,
+)
+
+#: What this benchmark reads that others made (run them first, same --work), the page
+#: it writes (None: it prints its table) and about how long it takes on 2 cores.
+NEEDS: tuple[str, ...] = ()
+PAGE = "docs/results/recordings/nuisance-glr-parts.md"
+MINUTES = 8
+
+STAGES = (5, 6, 7, 8)
+#: Seed trios never looked at while nuisance-glr's settings were chosen (on TRIOS' runs):
+#: `--held-out` measures on them.
+HELD_OUT = ((11, 12, 13), (14, 15, 16), (17, 18, 19))
+#: name -> (registry detector, trained with the noise floor)
+VARIANTS = {"matched filter": ("matched-filter", False),
+            "harmonic model, level with one change per window": ("nuisance-glr", False),
+            "harmonic model + noise floor (nuisance-glr)": ("nuisance-glr", True)}
+
+
+def run_path(work: Path, stage: int, seed: int) -> Path:
+    """The run of ``stage`` and ``seed`` with loud stretches (as `generate-run --stage S
+    --loud-stretches` names them in recordings_nuisance), written once."""
+    from railwatch.synthetic.run_files import write_run
+
+    path = work / f"stage{stage}-seed{seed}.parquet"
+    if not path.exists():
+        write_run(path, RUN_MINUTES, seed=seed, stage=stage, loud_stretches=True)
+    return path
+
+
+def variant_row(work: Path, stage: int, trio: tuple[int, int, int],
+                variant: str) -> dict:  # type: ignore[type-arg]
+    """One detector trained on the trio's first two runs, streamed over the third: its bound,
+    and at its own event threshold the defects found and the false rates on and off the loud
+    stretches."""
+    from railwatch.detection.pipeline import (
+        EVENTS_PER_MINUTE,
+        detect,
+        event_threshold,
+        training_set,
+    )
+    from railwatch.detectors import create
+    from railwatch.recordings.layout import load_layout
+    from railwatch.recordings.prepare import Preparation
+    from railwatch.recordings.readers import Recording
+
+    name, floor = VARIANTS[variant]
+    a, b, c = (run_path(work, stage, s) for s in trio)
+    layout = load_layout(a.with_suffix(".layout.toml"))
+    prep = Preparation()
+    X, context = training_set([Recording(p, layout) for p in (a, b)], prep, floor=floor)
+    det = create(name, {"progress": False}).fit(X, context)
+    threshold = det.set_threshold(event_threshold(prep, EVENTS_PER_MINUTE["benchmark"]))
+    low = [e.to_dict() for e in detect(det, Recording(c, layout), prep, threshold / 2).events]
+    truth = c.with_suffix(".defects.csv")
+    events = [e for e in low if e["score"] > threshold]
+    found, false, _ = match(events, truth)
+    return {"bound": best_at_false_rate(low, truth, TARGET_FALSE)[0], "found": found,
+            "false_min": false / RUN_MINUTES, **by_stretch(events, truth, stage, trio[2])}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", default=PAGE)
+    parser.add_argument("--work", default="runs/recordings-nuisance",
+                        help="folder of the runs (shared with recordings_nuisance; kept)")
+    parser.add_argument("--held-out", action="store_true",
+                        help="the held-out seed trios 11-19 instead of the development trios 1-9")
+    args = parser.parse_args()
+    trios = HELD_OUT if args.held_out else TRIOS
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    from railwatch.detection.oracle import null_threshold
+
+    null = null_threshold(TARGET_FALSE, 2000.0)
+    rows: dict[tuple[int, str], list[dict]] = {}  # type: ignore[type-arg]
+    for stage in STAGES:
+        for trio in trios:
+            run_path(work, stage, trio[2])
+            rows.setdefault((stage, "oracle"), []).append(
+                oracle_row(work, stage, True, trio[2], null))
+            for variant in VARIANTS:
+                rows.setdefault((stage, variant), []).append(variant_row(work, stage, trio,
+                                                                         variant))
+                print(stage, trio, variant, rows[(stage, variant)][-1], file=sys.stderr,
+                      flush=True)
+
+    from railwatch.machine import cpu_name
+    from railwatch.report.pages import write_markdown
+
+    def bounds(stage: int, variant: str) -> str:
+        vals = [r["bound"][0] if isinstance(r["bound"], tuple) else r["bound"]
+                for r in rows[(stage, variant)]]
+        return " / ".join(f"{v:.0%}" for v in vals) + f" (mean {np.mean(vals):.0%})"
+
+    names = ["oracle", *VARIANTS]
+    lines = [
+        "# nuisance-glr, part by part", "",
+        f"`{command(__name__)}` on {datetime.date.today()}: {cpu_name()}, "
+        f"{len(os.sched_getaffinity(0))} cores.", "",
+        "Runs of 10 minutes at 2 kHz with loud stretches (`railwatch generate-run --stage S "
+        "--loud-stretches`), resampled to 100 Hz by `detect`'s pipeline; each detector trained "
+        "on two runs and streamed over a third, per seed trio "
+        f"({', '.join('/'.join(map(str, t)) for t in trios)}: train, train, detect; "
+        + ("held-out seeds, never looked at while its settings were chosen" if args.held_out
+           else "the development seeds, on which its settings were chosen") + "). "
+        "Figure: the bound, defects found at <= 0.2 false events per minute by the best "
+        "threshold chosen on the test run (per trio, then the mean). The oracle knows the "
+        "run's clean signal and noise level (`railwatch.detection.oracle`).", "",
+        "| stage | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for stage in STAGES:
+        lines.append(f"| {stage} | " + " | ".join(bounds(stage, v) for v in names) + " |")
+    default = list(VARIANTS)[-1]
+    lines += ["", f"At its own event threshold (0.6 windows per minute of the training runs' "
+              f"null, `railwatch train`'s default at the benchmark's scale), `{default}`:", "",
+              "| stage | defects found (per trio) | false events / min | "
+              "false / min, quiet / loud track (per trio) |",
+              "|---|---|---|---|"]
+    for stage in STAGES:
+        mine = rows[(stage, default)]
+        found = " / ".join(f"{r['found']:.0%}" for r in mine)
+        false = " / ".join(f"{r['false_min']:.1f}" for r in mine)
+        split = ", ".join(f"{r['false_quiet']:.1f} / {r['false_loud']:.1f}" for r in mine)
+        lines.append(f"| {stage} | {found} | {false} | {split} |")
+    lines += ["", "Stages 5 and 6 carry the vibration and the stepping noise level; 7 adds "
+              "bursts of rough track, 8 the wheel's impulses, neither of which nuisance-glr "
+              "models yet (`docs/nuisance-glr.md`).", ""]
+    print(write_markdown(args.out, lines), end="")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,224 @@
+"""The harmonic nuisance model: a window's running vibration as one sinusoid whose amplitude and
+phase drift slowly (``railwatch.detectors.nuisance_glr``).
+
+A train's running vibration is narrow-band: the synthetic runs' base sinusoid has a frequency
+and amplitude proportional to speed, and the speed changes over tens of seconds, so within a
+2-s window the frequency drifts by a few percent. The model of one series ``x`` (T samples) is
+
+    x̂_t = b₀ + b₁ τ + Σ_{j=0..poly} τ^j (a_j sin φ_t + c_j cos φ_t),   τ = t / T − 1/2,
+
+with the phase ``φ_t`` of a frequency that changes linearly (a train that accelerates): the peak
+of the series' tapered spectrum at the centre (refined between bins), changing at the rate
+that the peaks of the window's two halves give; and the amplitudes ``a_j, c_j`` polynomials in
+time, so that a slow drift of amplitude and of phase stays in the model
+(``sin(φ + θ(τ)) = cos θ sin φ + sin θ cos φ``). It is fitted by Huber-weighted least
+squares (iteratively reweighted), so that a defect, a few samples long, does not pull it. Unlike
+a linear predictor's whitening, which also notches out the band around ``ω`` and with it much of
+a box's energy, the model takes away a subspace of ``2 (poly + 1) + 2`` smooth directions and
+leaves a box of 5-20 samples in 200 nearly whole.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+MAD_TO_STD = 1.4826
+#: The band around a window's spectral peak whose phase :func:`phase_break` follows: the paper's
+#: speed change multiplies the frequency by 0.5-1.5 (a factor of up to 3 between the two sides);
+#: a factor of 2 each way keeps most of both and drops most of the noise.
+BAND = 2.0
+#: A change of frequency under this share of the faster side's is left to the chirp of the first
+#: model (a train accelerating at 0.5 m/s² changes it by 3 % in 1 s at 15 m/s).
+MIN_JUMP = 0.03
+
+
+def dominant_frequency(x: F64, min_cycles: float = 0.5, taper: F64 | None = None) -> F64:
+    """The frequency (cycles per sample) of each series' largest spectral peak (B,), from the
+    Hann-tapered, mean-removed series zero-padded to at least 4 T, refined by a parabola
+    through the log magnitudes of the peak bin and its neighbours; peaks under ``min_cycles``
+    cycles per window are ignored (the intercept and trend take those). ``taper`` (B, T), if
+    given, replaces the Hann window (a segment's own: :func:`segment_taper`), and
+    ``min_cycles`` then counts cycles over the taper's support."""
+    n_series, n = x.shape
+    nfft = 1 << int(np.ceil(np.log2(4 * n)))
+    if taper is None:
+        taper = np.broadcast_to(np.hanning(n), x.shape)
+        span = np.full(n_series, float(n))
+    else:
+        span = np.maximum((taper > 0).sum(axis=1), 1.0)
+    mean = (x * taper).sum(axis=1, keepdims=True) / np.maximum(taper.sum(axis=1, keepdims=True),
+                                                                1e-300)
+    spec = np.abs(np.fft.rfft((x - mean) * taper, nfft))
+    bins = np.arange(spec.shape[1])
+    spec[bins[None, :] < np.ceil(min_cycles * nfft / span)[:, None]] = 0.0
+    spec[:, 0] = 0.0
+    k = np.clip(np.argmax(spec, axis=1), 1, spec.shape[1] - 2)
+    rows = np.arange(n_series)
+    a, b, c = (np.log(spec[rows, k + d] + 1e-300) for d in (-1, 0, 1))
+    den = a - 2 * b + c
+    shift = np.where(den < 0, 0.5 * (a - c) / np.where(den < 0, den, -1.0), 0.0)
+    return (k + np.clip(shift, -0.5, 0.5)) / nfft
+
+
+def segment_taper(n: int, start: NDArray[np.int64], stop: NDArray[np.int64]) -> F64:
+    """Hann windows (B, n) over ``[start, stop)`` of each series, zero elsewhere."""
+    t = np.arange(n)[None, :]
+    length = (stop - start)[:, None].astype(np.float64)
+    u = (t - start[:, None] + 0.5) / length
+    inside = (t >= start[:, None]) & (t < stop[:, None])
+    return np.where(inside, 0.5 - 0.5 * np.cos(2 * np.pi * u), 0.0)
+
+
+def chirp_rate(x: F64, freq: F64, max_drift: float = 0.15, min_cycles: float = 3.0) -> F64:
+    """The change of frequency per sample (cycles per sample², B,) from the spectral peaks of
+    the window's two halves near ``freq``: ``(f₂ − f₁) / (T / 2)``; 0 where the window holds
+    under ``min_cycles`` cycles or the halves differ by more than ``max_drift`` of ``freq``."""
+    n = x.shape[1]
+    half = n // 2
+    f1, f2 = (dominant_frequency(part, 0.5) for part in (x[:, :half], x[:, n - half:]))
+    drift = f2 - f1
+    ok = (freq * n >= min_cycles) & (np.abs(drift) <= max_drift * freq)
+    return np.where(ok, drift / (n - half), 0.0)
+
+
+def basis(n: int, freq: F64, poly: int, rate: F64 | None = None,
+          mask: NDArray[np.bool_] | None = None) -> F64:
+    """The model's design matrices (B, n, 2 + 2 (poly + 1)): intercept, trend, then
+    ``τ^j sin φ_t`` and ``τ^j cos φ_t`` for j = 0..poly, with ``φ_t = 2π (f t + r (t − c)² / 2)``
+    for a frequency that changes by ``rate`` r per sample (``freq`` f at the centre c). With
+    ``mask`` (B, n), the harmonic columns only: zero outside it (a segment's sinusoid)."""
+    t = np.arange(n, dtype=np.float64)
+    tau = t / n - 0.5
+    phase = 2 * np.pi * freq[:, None] * t[None, :]  # (B, n)
+    if rate is not None:
+        phase += np.pi * rate[:, None] * (t - (n - 1) / 2)[None, :] ** 2
+    first = 0 if mask is not None else 2
+    out = np.empty((len(freq), n, first + 2 * (poly + 1)))
+    if first:
+        out[:, :, 0], out[:, :, 1] = 1.0, tau
+    np.sin(phase, out=out[:, :, first])
+    np.cos(phase, out=out[:, :, first + 1])
+    if mask is not None:
+        out[:, :, first:first + 2] *= mask[:, :, None]
+    for j in range(1, poly + 1):
+        out[:, :, first + 2 * j:first + 2 * j + 2] = out[:, :, first:first + 2] * \
+            (tau ** j)[None, :, None]
+    return out
+
+
+def robust_fit(x: F64, design: F64, huber_k: float = 1.345,
+               iterations: int = 2) -> tuple[F64, F64]:
+    """Huber-IRLS least squares of every series ``x`` (B, T) on its ``design`` (B, T, P): the
+    fit (B, T) and the robust scale (B,) that sets the Huber threshold, 1.4826 MAD of the
+    least-squares residual (held through the reweightings: one median per series)."""
+    eye = np.eye(design.shape[2])
+    weights = np.ones_like(x)
+    weighted = design  # the first pass is unweighted; then one buffer for every pass
+    fit = np.zeros_like(x)
+    sigma = np.ones(len(x))
+    for it in range(iterations + 1):
+        if it:
+            weighted = np.empty_like(design) if it == 1 else weighted
+            np.multiply(design, weights[:, :, None], out=weighted)
+        gram = weighted.transpose(0, 2, 1) @ design
+        rhs = weighted.transpose(0, 2, 1) @ x[:, :, None]
+        scale = np.trace(gram, axis1=1, axis2=2)[:, None, None] / len(eye)
+        coef = np.linalg.solve(gram + 1e-9 * scale * eye + 1e-300 * eye, rhs)
+        fit = (design @ coef)[:, :, 0]
+        if it == iterations:
+            break
+        resid = x - fit
+        if it == 0:
+            sigma = MAD_TO_STD * np.median(np.abs(resid), axis=1) + 1e-12
+        weights = np.minimum(1.0, huber_k * sigma[:, None] / np.maximum(np.abs(resid), 1e-300))
+    return fit, sigma
+
+
+def phase_break(x: F64, min_segment: int, step: int = 2, edge: int = 8, band: float = BAND,
+                freq: F64 | None = None) -> tuple[NDArray[np.int64], F64]:
+    """Where the frequency of each series' oscillation changes (B,), and by what share of the
+    faster side's (B,): the breakpoint of the
+    continuous two-piece line that fits the unwrapped phase of its analytic signal best (least
+    squares, candidates every ``step`` samples at least ``min_segment`` from either end; the
+    ``edge`` samples at each end, which the transform bends, left out). The analytic signal is
+    taken of the band ``(f / band, f · band)`` around the series' spectral peak f only, so that
+    the noise elsewhere does not turn its phase. A jump of frequency is a kink of the phase,
+    whatever the noise level and the amplitude do. ``freq``: the series' spectral peaks, if
+    known."""
+    n = x.shape[1]
+    freqs = np.fft.fftfreq(n)[None, :]
+    peak = (dominant_frequency(x) if freq is None else freq)[:, None]
+    keep = (freqs > peak / band) & (freqs < peak * band)  # positive frequencies only
+    analytic = np.fft.ifft(np.where(keep, 2 * np.fft.fft(x, axis=1), 0), axis=1)
+    phase = np.unwrap(np.angle(analytic), axis=1)
+    y = phase[:, edge:n - edge]
+    t = np.arange(edge, n - edge, dtype=np.float64)
+    ks = np.arange(min_segment, n - min_segment + 1, step)
+    # Least squares on [1, t, (t − k)₊] for every k at once: the normal equations' matrix does
+    # not depend on the series, and Σ (t − k)₊ y = Σ_{t>k} t y − k Σ_{t>k} y from suffix sums.
+    hinge = np.maximum(t[None, :] - ks[:, None], 0.0)  # (K, T')
+    ones = np.ones_like(t)
+    gram = np.empty((len(ks), 3, 3))
+    for i, a in enumerate((ones, t)):
+        for j, b in enumerate((ones, t)):
+            gram[:, i, j] = a @ b
+        gram[:, i, 2] = gram[:, 2, i] = hinge @ a
+    gram[:, 2, 2] = (hinge ** 2).sum(axis=1)
+    inverse = np.linalg.inv(gram)  # (K, 3, 3)
+    suffix_y = np.cumsum(y[:, ::-1], axis=1)[:, ::-1]  # Σ_{t' ≥ t} y
+    suffix_ty = np.cumsum((y * t)[:, ::-1], axis=1)[:, ::-1]
+    after = np.searchsorted(t, ks, side="right")  # first t > k
+    inside = after < len(t)
+    at = np.minimum(after, len(t) - 1)
+    hy = np.where(inside, suffix_ty[:, at] - ks * suffix_y[:, at], 0.0)  # (B, K)
+    rhs = np.stack([np.broadcast_to(y.sum(axis=1, keepdims=True), hy.shape),
+                    np.broadcast_to((y * t).sum(axis=1, keepdims=True), hy.shape), hy], axis=2)
+    explained = np.einsum("bki,kij,bkj->bk", rhs, inverse, rhs)
+    best = np.argmax(explained, axis=1)
+    rows = np.arange(len(x))
+    coef = np.einsum("bij,bj->bi", inverse[best], rhs[rows, best])  # (B, 3): a, slope, change
+    before, after = coef[:, 1], coef[:, 1] + coef[:, 2]
+    share = np.abs(coef[:, 2]) / np.maximum(np.maximum(np.abs(before), np.abs(after)), 1e-300)
+    return ks[best], share
+
+
+def harmonic_fit(x: F64, poly: int = 2, huber_k: float = 1.345, iterations: int = 3,
+                 min_cycles: float = 0.5, chirp: bool = True, change: float = 0.0,
+                 min_segment: int = 20) -> F64:
+    """The fitted model x̂ (B, T) of every series ``x`` (B, T): the module docstring's model at
+    :func:`dominant_frequency` (with ``chirp``, changing at :func:`chirp_rate`), by least
+    squares then ``iterations`` Huber reweightings (threshold ``huber_k`` robust standard
+    deviations of the residual).
+
+    With ``change`` > 0, a speed that changes at one instant (the paper's stages 2-8): each side
+    of the window's :func:`phase_break` gets a sinusoid of its own frequency (amplitude and
+    phase drifting linearly), the intercept and trend shared; that model replaces the first
+    where it lowers the residual's power (squares clipped at 9 robust variances of the first
+    model's, so that a defect weighs the same in both) by more than the share ``change`` of
+    its rms."""
+    freq = dominant_frequency(x, min_cycles)
+    design = basis(x.shape[1], freq, poly, chirp_rate(x, freq) if chirp else None)
+    fit, sigma = robust_fit(x, design, huber_k, iterations)
+    if change <= 0 or x.shape[1] < 2 * min_segment:
+        return fit
+    n = x.shape[1]
+    split, share = phase_break(x, min_segment, freq=freq)
+    jumps = np.flatnonzero(share >= MIN_JUMP)  # the others keep the first model
+    if not len(jumps):
+        return fit
+    x2, split = x[jumps], split[jumps]
+    cols = [design[jumps, :, :2]]  # the shared intercept and trend
+    for lo, hi in ((np.zeros_like(split), split), (split, np.full_like(split, n))):
+        taper = segment_taper(n, lo, hi)
+        cols.append(basis(n, dominant_frequency(x2, min_cycles, taper), 1, None, taper > 0))
+    fit2, _ = robust_fit(x2, np.concatenate(cols, axis=2), huber_k, iterations)
+    clip = (3 * sigma[jumps, None]) ** 2  # a defect counts the same in both
+
+    def power(fitted: F64) -> F64:
+        return np.minimum((x2 - fitted) ** 2, clip).mean(axis=1)
+
+    better = power(fit2) < (1 - change) ** 2 * power(fit[jumps])
+    fit[jumps[better]] = fit2[better]
+    return fit

@@ -1,0 +1,81 @@
+"""nuisance-glr: where it must and must not fire, and the noise floor's calibration of loud
+stretches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from railwatch.detectors import create
+from railwatch.errors import RailwatchError
+from railwatch.recordings.floor import NOISE_FLOOR
+
+
+def windows(rng: np.random.Generator, n: int, loud: bool = False,
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` two-channel windows of 200 samples: a sinusoid and white noise of std 0.2, with
+    ``loud``, 4x louder over steps 40-80 and 120-160 (a level that steps four times, as a
+    recording's does every 0.4-1.6 s); and their noise power per sample (the floor)."""
+    t = np.arange(200)
+    f = rng.uniform(0.01, 0.3, (n, 1, 2))
+    x = rng.uniform(0.5, 2, (n, 1, 2)) * np.sin(2 * np.pi * f * t[None, :, None]
+                                                 + rng.uniform(0, 6, (n, 1, 2)))
+    std = np.full((n, 200, 2), 0.2)
+    if loud:
+        std[:, 40:80] *= 4
+        std[:, 120:160] *= 4
+    return (x + std * rng.standard_normal(x.shape)).astype(np.float32), \
+        (std ** 2).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def fitted():  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(0)
+    X, floor = windows(rng, 120)
+    det = create("nuisance-glr", {"null_windows": 2000})
+    return det.fit(X, {NOISE_FLOOR: floor}), det
+
+
+def test_fires_on_a_box_and_a_spike_where_they_are(fitted) -> None:  # type: ignore[no-untyped-def]
+    det, _ = fitted
+    rng = np.random.default_rng(1)
+    X, floor = windows(rng, 40)
+    clean = det.score(X, {NOISE_FLOOR: floor})
+    hit = X.copy()
+    hit[:20, 80:95, 1] += 1.0  # a box of 5 noise std on channel 1
+    hit[20:, 150, 0] += 1.6  # a spike of 8 noise std on channel 0
+    s = det.score(hit, {NOISE_FLOOR: floor})
+    assert (s.instance > clean.instance).all()
+    assert (s.instance[:20] > np.quantile(clean.instance, 0.95)).mean() >= 0.9
+    peak_t, peak_c = s.point.argmax(axis=1), s.channel.max(axis=1).argmax(axis=1)
+    assert (np.abs(peak_t[:20] - 87) <= 10).mean() >= 0.9 and (peak_c[:20] == 1).all()
+    assert (np.abs(peak_t[20:] - 150) <= 1).mean() >= 0.9 and (peak_c[20:] == 0).all()
+
+
+def test_the_floor_holds_the_false_rate_on_loud_track(fitted) -> None:  # type: ignore[no-untyped-def]
+    """Windows whose noise turns 4x louder and back twice: with the floor their scores stay
+    those of quiet windows; without it (a level with at most one change per window) the loud
+    stretches fire. And a defect on a quiet stretch is found with the floor."""
+    det, _ = fitted
+    rng = np.random.default_rng(2)
+    quiet, qf = windows(rng, 200)
+    loud, lf = windows(rng, 200, loud=True)
+    threshold = np.quantile(det.score(quiet, {NOISE_FLOOR: qf}).instance, 0.9)
+    assert (det.score(loud, {NOISE_FLOOR: lf}).instance > threshold).mean() < 0.2
+    blind = create("nuisance-glr", {"null_windows": 2000}).fit(quiet)
+    blind_threshold = np.quantile(blind.score(quiet).instance, 0.9)
+    assert (blind.score(loud).instance > blind_threshold).mean() > 0.5
+    hit = loud.copy()
+    hit[:, 90:100, 0] += 0.6  # a box of 3 quiet-noise std on the quiet stretch between
+    found = (det.score(hit, {NOISE_FLOOR: lf}).instance > threshold).mean()
+    assert found > (blind.score(hit).instance > blind_threshold).mean() - 0.3 and found > 0.8
+
+
+def test_scored_as_it_was_fitted(fitted) -> None:  # type: ignore[no-untyped-def]
+    det, _ = fitted
+    X, floor = windows(np.random.default_rng(3), 3)
+    with pytest.raises(RailwatchError, match="fitted with noise_floor but is scored with none"):
+        det.score(X)
+    blind = create("nuisance-glr", {"null_windows": 2000}).fit(X)
+    with pytest.raises(RailwatchError, match="fitted with no side array"):
+        blind.score(X, {NOISE_FLOOR: floor})

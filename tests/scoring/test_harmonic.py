@@ -1,0 +1,122 @@
+"""The harmonic nuisance model: its frequency, its fit against least squares, and what it leaves
+of a defect."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from railwatch.scoring.harmonic import (
+    basis,
+    chirp_rate,
+    dominant_frequency,
+    harmonic_fit,
+    phase_break,
+)
+
+
+def drifting(rng: np.random.Generator, n: int = 200, f: float = 0.073) -> np.ndarray:
+    """A sinusoid whose frequency drifts 4 % and amplitude 30 % over the window (a train
+    accelerating), plus N(0, 0.2²) noise."""
+    t = np.arange(n)
+    phase = 2 * np.pi * f * (t + 0.02 * t ** 2 / n) + rng.uniform(0, 2 * np.pi)
+    return 1.5 * (1 + 0.3 * t / n) * np.sin(phase) + 0.2 * rng.standard_normal(n)
+
+
+def test_dominant_frequency_between_bins_and_despite_a_box() -> None:
+    rng = np.random.default_rng(0)
+    t = np.arange(200)
+    f = rng.uniform(0.01, 0.4, 50)
+    x = np.sin(2 * np.pi * f[:, None] * t + rng.uniform(0, 6, (50, 1)))
+    x += 0.1 * rng.standard_normal(x.shape)
+    np.testing.assert_allclose(dominant_frequency(x), f, atol=0.002)
+    x[:, 90:110] += 1.5  # a 20-sample box half the sinusoid's amplitude
+    np.testing.assert_allclose(dominant_frequency(x), f, atol=0.003)
+
+
+def test_unweighted_fit_is_least_squares_on_the_basis() -> None:
+    rng = np.random.default_rng(1)
+    x = np.stack([drifting(rng) for _ in range(4)])
+    fit = harmonic_fit(x, poly=2, iterations=0, chirp=False)
+    design = basis(200, dominant_frequency(x), 2)
+    for i in range(4):
+        coef = np.linalg.lstsq(design[i], x[i], rcond=None)[0]
+        np.testing.assert_allclose(fit[i], design[i] @ coef, atol=1e-6)
+
+
+def test_residual_is_the_noise_and_keeps_a_box() -> None:
+    """Must not fire: on a drifting sinusoid the residual is the noise. Must fire: a box of
+    2 added on top stays in the residual nearly whole (the Huber weights keep it out of the
+    fit)."""
+    rng = np.random.default_rng(2)
+    clean = np.stack([drifting(rng, f=f) for f in np.linspace(0.01, 0.33, 40)])
+    resid = clean - harmonic_fit(clean)
+    assert 0.17 < np.median(resid.std(axis=1)) < 0.21
+    boxed = clean.copy()
+    boxed[:, 120:135] += 2.0
+    left = (boxed - harmonic_fit(boxed))[:, 120:135].mean(axis=1)
+    assert np.median(left) > 1.8 and left.min() > 1.4
+
+
+def test_chirp_rate_of_an_accelerating_train() -> None:
+    """A frequency rising 6 % over the window (0.5 m/s² at 15 m/s) is measured; the chirped
+    model then leaves no residual above the noise where a fixed frequency would."""
+    rng = np.random.default_rng(3)
+    t = np.arange(200)
+    f0, rate = 0.3, 0.3 * 0.06 / 200
+    x = np.stack([2 * np.sin(2 * np.pi * (f0 * t + rate * (t - 99.5) ** 2 / 2) + p)
+                  for p in rng.uniform(0, 6, 20)]) + 0.05 * rng.standard_normal((20, 200))
+    np.testing.assert_allclose(chirp_rate(x, dominant_frequency(x)), rate, rtol=0.2)
+    chirped = np.abs(x - harmonic_fit(x)).max(axis=1)
+    fixed = np.abs(x - harmonic_fit(x, chirp=False)).max(axis=1)
+    assert np.median(chirped) < 0.25 < np.median(fixed)
+
+
+def phase_kink_by_loop(x: np.ndarray, min_segment: int, step: int = 2, edge: int = 8) -> int:
+    """The breakpoint of the continuous two-piece line fitted to the band-passed analytic
+    signal's phase, by one least-squares fit per candidate."""
+    n = len(x)
+    spec = np.fft.fft(x)
+    f = np.fft.fftfreq(n)
+    peak = dominant_frequency(x[None, :])[0]
+    analytic = np.fft.ifft(np.where((f > peak / 2) & (f < peak * 2), 2 * spec, 0))
+    y = np.unwrap(np.angle(analytic))[edge:n - edge]
+    t = np.arange(edge, n - edge, dtype=float)
+    sse = {}
+    for k in range(min_segment, n - min_segment + 1, step):
+        design = np.stack([np.ones_like(t), t, np.maximum(t - k, 0)], axis=1)
+        resid = y - design @ np.linalg.lstsq(design, y, rcond=None)[0]
+        sse[k] = resid @ resid
+    return min(sse, key=sse.get)
+
+
+def speed_change(rng: np.random.Generator, n_series: int) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's speed change: frequency x U[0.5, 1.5] and amplitude x U[0.5, 1.5] at an
+    instant in [40, 160), phase continuous; noise 0.1."""
+    t = np.arange(200)
+    at = rng.integers(40, 160, n_series)
+    f1 = rng.uniform(0.03, 0.2, n_series)
+    k = rng.choice([-1, 1], n_series) * rng.uniform(0.1, 0.5, n_series) + 1
+    x = np.stack([np.where(t < c, np.sin(2 * np.pi * a * t),
+                           rng.uniform(0.5, 1.5) * np.sin(2 * np.pi * (a * c + a * b * (t - c))))
+                  for c, a, b in zip(at, f1, k, strict=True)])
+    return x + 0.1 * rng.standard_normal(x.shape), at
+
+
+def test_phase_break_equals_a_loop_and_finds_the_speed_change() -> None:
+    x, at = speed_change(np.random.default_rng(4), 30)
+    split, share = phase_break(x, 20)
+    assert split.tolist() == [phase_kink_by_loop(row, 20) for row in x]
+    assert np.mean(np.abs(split - at) <= 6) >= 0.9 and (share > 0.05).mean() >= 0.9
+
+
+def test_a_speed_change_is_modelled_and_a_box_on_it_kept() -> None:
+    """Must not fire: after a speed change the two-sided model leaves the noise. Must fire: a box
+    of 1 (10 noise std) on it stays in the residual."""
+    x, _ = speed_change(np.random.default_rng(5), 40)
+    one = np.abs(x - harmonic_fit(x)).max(axis=1)
+    two = np.abs(x - harmonic_fit(x, change=0.1)).max(axis=1)
+    assert np.median(two) < 0.45 < np.median(one)
+    boxed = x.copy()
+    boxed[:, 100:115] += 1.0
+    left = (boxed - harmonic_fit(boxed, change=0.1))[:, 100:115].mean(axis=1)
+    assert np.median(left) > 0.85
