@@ -79,3 +79,26 @@ def test_scored_as_it_was_fitted(fitted) -> None:  # type: ignore[no-untyped-def
     blind = create("nuisance-glr", {"null_windows": 2000}).fit(X)
     with pytest.raises(RailwatchError, match="fitted with no side array"):
         blind.score(X, {NOISE_FLOOR: floor})
+
+
+def stage_auc(stage: int) -> float:
+    from sklearn.metrics import roc_auc_score
+
+    from railwatch.synthetic import generate
+
+    train, test = generate(stage, 500, seed=0), generate(stage, 500, seed=1)
+    det = create("nuisance-glr", {"null_windows": 2000, "progress": False}).fit(train.X)
+    return float(roc_auc_score(test.y, det.score(test.X).instance))
+
+
+# Measured 2026-12-06 (Intel Xeon, 2 cores): 0.981 at stage 1 and 0.733 at stage 8 (3 s each).
+# The floors leave room for platform noise; stage 8's is near the matched filter's (0.711,
+# standard): bursts and impulses are not modelled yet.
+@pytest.mark.slow
+def test_auc_floor_stage1() -> None:
+    assert stage_auc(1) >= 0.96
+
+
+@pytest.mark.slow
+def test_auc_floor_stage8() -> None:
+    assert stage_auc(8) >= 0.68
