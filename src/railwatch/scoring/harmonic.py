@@ -16,6 +16,10 @@ squares (iteratively reweighted), so that a defect, a few samples long, does not
 a linear predictor's whitening, which also notches out the band around ``ω`` and with it much of
 a box's energy, the model takes away a subspace of ``2 (poly + 1) + 2`` smooth directions and
 leaves a box of 5-20 samples in 200 nearly whole.
+
+The paper's windows change speed at one instant instead (stages 2-8: the frequency ×0.5-1.5):
+:func:`phase_break` finds the instant as the kink of the oscillation's phase, and
+:func:`harmonic_fit` with ``change`` gives each side a sinusoid of its own.
 """
 
 from __future__ import annotations
