@@ -32,7 +32,12 @@ from numpy.typing import NDArray
 
 from railwatch.detectors import model_folder
 from railwatch.errors import RailwatchError, one_line
-from railwatch.scoring.reduce import Localization, localize
+from railwatch.scoring.reduce import (
+    Localization,
+    localize,
+    reduce_instance_max,
+    reduce_point_max,
+)
 from railwatch.scoring.thresholds import ContaminationQuantile, ThresholdRule
 
 if TYPE_CHECKING:
@@ -456,3 +461,23 @@ def positive_count(values: Mapping[str, Any], key: str, where: str) -> int:
 def standardize(values: NDArray[Any], mean: NDArray[Any], std: NDArray[Any]) -> NDArray[Any]:
     """``(values − mean) / std`` with a floor on std, for per-channel score standardisation."""
     return (values - mean) / np.maximum(std, 1e-8)
+
+
+def peak_statistics(raw: NDArray[Any]) -> dict[str, NDArray[np.float32]]:
+    """``score_median`` and ``score_scale`` (C,) of raw channel scores (N, T, C) of the training
+    windows: per channel, the median and the MAD-based scale (1.4826 MAD; 1 where it vanishes)
+    of each window's largest score. Robust: the training set holds 10 % anomalies, whose huge
+    scores would inflate a mean and std."""
+    peak = raw.max(axis=1)  # (N, C): each window's largest score per channel
+    median = np.median(peak, axis=0)
+    mad = 1.4826 * np.median(np.abs(peak - median), axis=0)
+    return {"score_median": median.astype(np.float32),
+            "score_scale": np.where(mad > 1e-8, mad, 1.0).astype(np.float32)}
+
+
+def peak_standardized(raw: NDArray[Any], stats: Mapping[str, NDArray[Any]]) -> Scores:
+    """Scores of raw channel scores (N, T, C) standardised by :func:`peak_statistics`: channel
+    = standardised score, point = max over channels, instance = max over time."""
+    channel = standardize(raw, stats["score_median"], stats["score_scale"]).astype(np.float32)
+    point = reduce_point_max(channel)
+    return Scores(instance=reduce_instance_max(point), point=point, channel=channel)

@@ -59,7 +59,14 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
-from railwatch.detectors.api import Detector, DetectorConfig, FloatArray, Scores, standardize
+from railwatch.detectors.api import (
+    Detector,
+    DetectorConfig,
+    FloatArray,
+    Scores,
+    peak_standardized,
+    peak_statistics,
+)
 from railwatch.errors import RailwatchError
 from railwatch.scoring.glr import (
     Family,
@@ -71,7 +78,6 @@ from railwatch.scoring.glr import (
     scale_counts,
     scan,
 )
-from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
 from railwatch.scoring.residual import masked_median
 
 F64 = NDArray[np.float64]
@@ -291,14 +297,7 @@ class MatchedFilter(Detector):
         if energy:
             self.stats_["energy_count"] = np.array([effective_energy_count(
                 self.n_steps_, energy, cfg.null_windows, cfg.null_alpha, cfg.seed)])
-        peak = self.raw_scores(X).max(axis=1)  # (N, C): each window's largest score per channel
-        median = np.median(peak, axis=0)
-        mad = MAD_TO_STD * np.median(np.abs(peak - median), axis=0)
-        self.stats_["score_median"] = median.astype(np.float32)
-        self.stats_["score_scale"] = np.where(mad > 1e-8, mad, 1.0).astype(np.float32)
+        self.stats_.update(peak_statistics(self.raw_scores(X)))
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
-        channel = standardize(self.raw_scores(X), self.stats_["score_median"],
-                              self.stats_["score_scale"]).astype(np.float32)
-        point = reduce_point_max(channel)
-        return Scores(instance=reduce_instance_max(point), point=point, channel=channel)
+        return peak_standardized(self.raw_scores(X), self.stats_)

@@ -38,12 +38,18 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
 
-from railwatch.detectors.api import Detector, DetectorConfig, FloatArray, Scores, standardize
+from railwatch.detectors.api import (
+    Detector,
+    DetectorConfig,
+    FloatArray,
+    Scores,
+    peak_standardized,
+    peak_statistics,
+)
 from railwatch.errors import RailwatchError
 from railwatch.recordings.floor import NOISE_FLOOR
 from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
 from railwatch.scoring.harmonic import MAD_TO_STD, harmonic_fit
-from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
 from railwatch.scoring.residual import changepoint_scale
 
 #: Series fitted at once: bounds the design matrices (series, T, 10) to a few MB.
@@ -142,15 +148,7 @@ class NuisanceGLR(Detector):
         cfg = self.config
         self.stats_["null_counts"] = effective_counts(
             self.n_steps_, self._families(), cfg.null_windows, cfg.null_alpha, cfg.seed)
-        peak = self.raw_scores(X, context.get(NOISE_FLOOR)).max(axis=1)  # (N, C)
-        median = np.median(peak, axis=0)
-        mad = MAD_TO_STD * np.median(np.abs(peak - median), axis=0)
-        self.stats_["score_median"] = median.astype(np.float32)
-        self.stats_["score_scale"] = np.where(mad > 1e-8, mad, 1.0).astype(np.float32)
+        self.stats_.update(peak_statistics(self.raw_scores(X, context.get(NOISE_FLOOR))))
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:
-        channel = standardize(self.raw_scores(X, context.get(NOISE_FLOOR)),
-                              self.stats_["score_median"],
-                              self.stats_["score_scale"]).astype(np.float32)
-        point = reduce_point_max(channel)
-        return Scores(instance=reduce_instance_max(point), point=point, channel=channel)
+        return peak_standardized(self.raw_scores(X, context.get(NOISE_FLOOR)), self.stats_)
