@@ -91,11 +91,14 @@ class NoiseFloor:
             self.counts = np.concatenate([self.counts, np.zeros(grow)])
         with np.errstate(invalid="ignore", divide="ignore"):
             out = self.sums[:k] / self.counts[:k, None]
-        for j in range(k):  # a gap takes the floor before it (after it at the very start)
-            if np.isnan(out[j]).any():
-                out[j] = self.last
-            else:
-                self.last = out[j]
+        gap = self.counts[:k] == 0
+        if gap.any():  # a gap takes the floor before it (after it at the very start)
+            rows = np.arange(k)
+            before = np.maximum.accumulate(np.where(gap, -1, rows))  # last row with a floor
+            out[gap] = np.where(before[gap, None] >= 0, out[np.maximum(before[gap], 0)],
+                                self.last)
+        if (~gap).any():
+            self.last = out[np.flatnonzero(~gap)[-1]].copy()
         if k and np.isnan(out).any():
             valid = out[~np.isnan(out).any(axis=1)]
             out[np.isnan(out).any(axis=1)] = valid[0] if len(valid) else 0.0
