@@ -17,8 +17,8 @@ chosen on the test run. Stage 6 draws the defect's channel by its kind's odds; 7
 8 adds wheel-periodic impulses; every stage has a noise level that steps every 0.4-1.6 s and the
 loud stretches.
 
-Run: `python -m benchmarks nuisance_glr_parts` (about 4 minutes on 2 cores, 8 when it makes the runs; shared
-with `make bench-recordings-nuisance` in the same `--work`); `--held-out --out
+Run: `python -m benchmarks nuisance_glr_parts` (about 4 minutes on 2 cores, 8 when it makes the
+runs, which it shares with `make bench-recordings-nuisance` in the same `--work`); `--held-out --out
 docs/results/recordings/nuisance-glr-parts-held-out.md` on seed trios 11-19, never looked at
 while nuisance-glr's settings were chosen.
 """
