@@ -91,9 +91,9 @@ def stage_auc(stage: int) -> float:
     return float(roc_auc_score(test.y, det.score(test.X).instance))
 
 
-# Measured 2026-12-06 (Intel Xeon, 2 cores): 0.981 at stage 1 and 0.733 at stage 8 (3 s each).
-# The floors leave room for platform noise; stage 8's is near the matched filter's (0.711,
-# standard): bursts and impulses are not modelled yet.
+# Measured 2026-12-06 (Intel Xeon, 2 cores): 0.980 at stage 1 and 0.768 at stage 8 (3 s each;
+# 0.733 before the burst model and the impulses' synchronous level, which the stage-8 floor
+# would fail). The floors leave room for platform noise.
 @pytest.mark.slow
 def test_auc_floor_stage1() -> None:
     assert stage_auc(1) >= 0.96
@@ -101,4 +101,4 @@ def test_auc_floor_stage1() -> None:
 
 @pytest.mark.slow
 def test_auc_floor_stage8() -> None:
-    assert stage_auc(8) >= 0.68
+    assert stage_auc(8) >= 0.74

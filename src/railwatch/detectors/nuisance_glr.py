@@ -17,14 +17,20 @@ channel (vectorised over the N·C series, chunks of windows on up to two threads
    so that the level may step anywhere in the window; without a floor, by a level with at most
    one change per window (:func:`railwatch.scoring.residual.changepoint_scale`, the paper's
    stage 4). Then by the robust scale (1.4826 MAD) of what is left, one per window.
-3. **Test**: the oracle's GLR scan for a spike and for boxes of ``min_box``-``max_box``
+3. **Bursts** (:mod:`railwatch.scoring.bursts`): the best short oscillation around the whitened
+   residual's energy peak is taken out where it explains more than a box or a spike there (by
+   ``burst_margin`` and the share ``burst_ratio``), and the level is measured again without it.
+4. **Periodic impulses** (:mod:`railwatch.scoring.periodic`): where the residual repeats at a
+   period of ``min_period``-``max_period`` samples (autocorrelation >= ``period_correlation``),
+   the level at each sample rises to the robust power at the same phase of the neighbouring
+   periods (over ``period_guard``): an impulse repeats a period later, a defect does not.
+5. **Test**: the oracle's GLR scan for a spike and for boxes of ``min_box``-``max_box``
    samples on that whitened residual, each family calibrated to ``−log10`` of its family-wise
    p-value under N(0, 1) noise (:mod:`railwatch.scoring.glr`).
-4. **Channels made comparable** by training statistics, as the matched filter's: per channel,
+6. **Channels made comparable** by training statistics, as the matched filter's: per channel,
    the median and MAD-scale of the window maxima over the training windows (labels unused).
 
-What it does not model yet: bursts of rough track and the wheel's periodic impulses (stages 7
-and 8). The doc page gives what each costs it.
+The doc page gives what each part recovers, and what is still lost at stages 7 and 8.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import median_filter
+from threadpoolctl import threadpool_limits
 
 from railwatch.detectors.api import (
     Detector,
@@ -48,8 +55,10 @@ from railwatch.detectors.api import (
 )
 from railwatch.errors import RailwatchError
 from railwatch.recordings.floor import NOISE_FLOOR
+from railwatch.scoring.bursts import best_burst
 from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
 from railwatch.scoring.harmonic import MAD_TO_STD, harmonic_fit
+from railwatch.scoring.periodic import synchronous_level
 from railwatch.scoring.residual import changepoint_scale
 
 #: Series fitted at once: bounds the design matrices (series, T, 10) to a few MB.
@@ -70,22 +79,33 @@ class NuisanceGLRConfig(DetectorConfig):
     floor_span: int = 10  # the noise floor's running median: ±samples (0.1 s at 100 Hz)
     min_box: int = 5  # shortest local deviation, samples (spec: 0.05 s at 100 Hz)
     max_box: int = 20  # longest local deviation, samples (spec: 0.2 s at 100 Hz)
+    bursts: bool = True  # take out a short oscillation better explained so than as a defect
+    burst_margin: float = 12.0  # ... by this much more energy (noise variances) than a defect
+    burst_ratio: float = 0.5  # ... and (1 + this) times its energy (a large defect's shape)
+    burst_minimum: float = 20.0  # ... and this much in all
+    burst_oversample: float = 4.0  # atom frequencies per 1 / length (the resolution)
+    period_guard: float = 1.25  # impulses: level >= the same phase's, over this (0: off)
+    period_correlation: float = 0.2  # ... where the residual's autocorrelation reaches this
+    min_period: int = 10  # the impulses' period, samples (0.1-0.5 s at 100 Hz: a wheel
+    max_period: int = 50  # revolution at the benchmark's scale)
     null_windows: int = 10000  # Monte Carlo N(0, 1) windows calibrating each family
     null_alpha: float = 0.05  # tail level at which each family's calibration is exact
 
 
-def whiten(residual: NDArray[np.float64], floor: NDArray[np.float64] | None,
-           span: int) -> NDArray[np.float64]:
-    """The residual (B, T) over its noise level: divided by √(running median of ``floor``,
-    ±``span`` samples) where a floor (B, T, power) is given, then by the robust scale of what is
-    left (one per series)."""
+def noise_level(residual: NDArray[np.float64], floor: NDArray[np.float64] | None,
+                span: int) -> NDArray[np.float64]:
+    """The residual's noise std at every sample (B, T): √(running median of ``floor``,
+    ±``span`` samples) where a floor (B, T, power) is given, else a level with at most one change
+    per series; times the robust scale (1.4826 MAD) of the residual over that shape, one per
+    series. ``residual / noise_level(...)`` is the whitened residual."""
     if floor is None:
-        u = residual / changepoint_scale(residual[:, :, None])[:, :, 0]
+        level = changepoint_scale(residual[:, :, None])[:, :, 0]
     else:
         level = np.sqrt(median_filter(np.maximum(floor, 0.0), size=(1, 2 * span + 1),
                                       mode="nearest"))
-        u = residual / np.maximum(level, 1e-12 * (level.max(axis=1, keepdims=True) + 1e-300))
-    return u / (MAD_TO_STD * np.median(np.abs(u), axis=1, keepdims=True) + 1e-12)
+        level = np.maximum(level, 1e-12 * (level.max(axis=1, keepdims=True) + 1e-300))
+    u = residual / level
+    return level * (MAD_TO_STD * np.median(np.abs(u), axis=1, keepdims=True) + 1e-12)
 
 
 class NuisanceGLR(Detector):
@@ -129,7 +149,18 @@ class NuisanceGLR(Detector):
             x = series(X)
             r = x - harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
                                  cfg.chirp, cfg.change)
-            w = whiten(r, None if floor is None else series(floor), cfg.floor_span)
+            fl = None if floor is None else series(floor)
+            level = noise_level(r, fl, cfg.floor_span)
+            if cfg.bursts:
+                burst = best_burst(r / level, fams[1], cfg.burst_oversample, cfg.burst_margin,
+                                   cfg.burst_minimum, cfg.burst_ratio)
+                if burst.kept.any():  # a burst takes no part in the level either
+                    r = r - burst.fit * level
+                    level = noise_level(r, fl, cfg.floor_span)
+            if cfg.period_guard > 0:  # the level rises where the same phase rises every period
+                level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
+                                                  cfg.period_guard, cfg.period_correlation)
+            w = r / level
             out[part] = scan(w.reshape(-1, n_channels, n_steps).transpose(0, 2, 1), fams, norms,
                              counts)
 
@@ -137,7 +168,8 @@ class NuisanceGLR(Detector):
         starts = range(0, n, step)
         workers = min(len(starts), len(os.sched_getaffinity(0)), MAX_THREADS)
         if workers > 1:  # numpy lets go of the GIL in the fits: the cores it may use share them
-            with ThreadPoolExecutor(workers) as pool:
+            # one BLAS thread per worker: BLAS's own threads on top would contend for the cores
+            with threadpool_limits(1, user_api="blas"), ThreadPoolExecutor(workers) as pool:
                 list(pool.map(scored, starts))
         else:
             for i in starts:
