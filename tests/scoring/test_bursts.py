@@ -80,3 +80,12 @@ def test_a_defect_or_noise_is_left_alone(kind: str) -> None:
     # noise alone lends a 2-parameter atom a large energy somewhere now and then
     assert found.kept.mean() <= (0.1 if kind == "noise" else 0.02)
     np.testing.assert_array_equal(found.fit[~found.kept], 0.0)
+
+
+def test_a_window_shorter_than_the_longest_atom() -> None:
+    rng = np.random.default_rng(5)
+    w = rng.standard_normal((20, 16))
+    w[:, 4:12] += burst(16, 4, 8, 0.3, 4.0)[4:12]
+    found = best_burst(w, LENGTHS, 4.0, MARGIN, MINIMUM, RATIO)
+    assert found.fit.shape == w.shape and np.all(found.start + found.length <= 16)
+    assert found.kept.mean() >= 0.8

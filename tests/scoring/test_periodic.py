@@ -82,3 +82,8 @@ def test_a_defect_or_noise_keeps_its_level(kind: str) -> None:
     level = synchronous_level(w, 10, 50, GUARD, CORRELATION)
     assert np.mean(level == 1.0) > 0.95
     assert np.median(level[:, 100]) == 1.0  # the defect does not repeat a period later
+
+
+def test_a_window_too_short_for_two_periods_keeps_its_level() -> None:
+    w = np.random.default_rng(6).standard_normal((3, 18))
+    np.testing.assert_array_equal(synchronous_level(w, 10, 50, GUARD, CORRELATION), 1.0)

@@ -135,7 +135,9 @@ def best_burst(w: F64, lengths: tuple[int, ...], oversample: float, margin: floa
     e = coef_c * bc1 + coef_s * bs1
     local = np.arange(at.span)[None, :]
     atom = coef_c[:, None] * c + coef_s[:, None] * s
-    kept = (e > minimum) & (e - margin > (1 + ratio) * defect_energy(w, first, length, lengths))
+    inside = np.isfinite(energy[rows, best])  # a window shorter than every atom has none
+    kept = inside & (e > minimum) & (e - margin > (1 + ratio) * defect_energy(w, first, length,
+                                                                              lengths))
     fit = np.zeros((n_series, n_steps + 2 * at.centre))
     fit[rows[:, None], peak[:, None] + local] = np.where(kept[:, None], atom, 0.0)
     return Burst(e, first, length, at.freq[best], kept, fit[:, at.centre:at.centre + n_steps])
@@ -151,7 +153,7 @@ def defect_energy(w: F64, start: NDArray[np.int64], length: NDArray[np.int64],
     inside = (steps >= start[:, None]) & (steps < end)
     best = np.where(inside, w * w, 0.0).max(axis=1)
     cs = np.concatenate([np.zeros((len(w), 1)), np.cumsum(w, axis=1)], axis=1)
-    for box in lengths:
+    for box in (b for b in lengths if b <= n_steps):
         sums = cs[:, box:] - cs[:, :-box]  # boxes starting at 0 .. T - box
         s = steps[:, :n_steps - box + 1]
         overlaps = (s < end) & (s + box > start[:, None])

@@ -79,6 +79,8 @@ def synchronous_level(w: F64, min_period: int, max_period: int, guard: float,
     largest ``w²`` within ±``tol`` samples, over :func:`null_power`) / ``guard``, where at least
     two such periods lie in the window; 1 elsewhere (module docstring)."""
     n_series, n_steps = w.shape
+    if n_steps // 2 < min_period:  # not two periods in the window
+        return np.ones_like(w)
     per, rho = period(w, min_period, max_period)
     peak = maximum_filter1d(w * w, 2 * tol + 1, axis=1, mode="nearest")
     ks = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
