@@ -154,9 +154,10 @@ class NuisanceGLR(Detector):
             if cfg.bursts:
                 burst = best_burst(r / level, fams[1], cfg.burst_oversample, cfg.burst_margin,
                                    cfg.burst_minimum, cfg.burst_ratio)
-                if burst.kept.any():  # a burst takes no part in the level either
-                    r = r - burst.fit * level
-                    level = noise_level(r, fl, cfg.floor_span)
+                k = burst.kept
+                if k.any():  # a burst takes no part in the level either
+                    r[k] -= burst.fit[k] * level[k]
+                    level[k] = noise_level(r[k], None if fl is None else fl[k], cfg.floor_span)
             if cfg.period_guard > 0:  # the level rises where the same phase rises every period
                 level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
                                                   cfg.period_guard, cfg.period_correlation)

@@ -146,16 +146,24 @@ def best_burst(w: F64, lengths: tuple[int, ...], oversample: float, margin: floa
 def defect_energy(w: F64, start: NDArray[np.int64], length: NDArray[np.int64],
                   lengths: tuple[int, ...]) -> F64:
     """Per series, the most energy a spike or a box (``lengths``) that overlaps the span
-    [start, start + length) explains: ``w_t²`` or ``(Σ w)² / L``."""
-    n_steps = w.shape[1]
-    steps = np.arange(n_steps)[None, :]
-    end = (start + length)[:, None]
-    inside = (steps >= start[:, None]) & (steps < end)
-    best = np.where(inside, w * w, 0.0).max(axis=1)
-    cs = np.concatenate([np.zeros((len(w), 1)), np.cumsum(w, axis=1)], axis=1)
+    [start, start + length) explains: ``w_t²`` or ``(Σ w)² / L``. Only the samples a box over
+    the span can reach are looked at."""
+    n_series, n_steps = w.shape
+    reach = max(lengths) - 1
+    width = int(length.max()) + 2 * reach  # every box that overlaps the span lies in here
+    origin = start - reach  # the band's first sample, in the window (may lie before it)
+    pos = origin[:, None] + np.arange(width)[None, :]
+    valid = (pos >= 0) & (pos < n_steps)
+    band = np.where(valid, w[np.arange(n_series)[:, None], np.clip(pos, 0, n_steps - 1)], 0.0)
+    local = np.arange(width)[None, :]
+    inside = (local >= reach) & (local < reach + length[:, None])
+    best = np.where(inside, band * band, 0.0).max(axis=1)
+    cs = np.concatenate([np.zeros((n_series, 1)), np.cumsum(band, axis=1)], axis=1)
+    vs = np.concatenate([np.zeros((n_series, 1)), np.cumsum(valid, axis=1)], axis=1)
     for box in (b for b in lengths if b <= n_steps):
-        sums = cs[:, box:] - cs[:, :-box]  # boxes starting at 0 .. T - box
-        s = steps[:, :n_steps - box + 1]
-        overlaps = (s < end) & (s + box > start[:, None])
+        sums = cs[:, box:] - cs[:, :-box]  # boxes starting at 0 .. width - box of the band
+        whole = (vs[:, box:] - vs[:, :-box]) == box  # inside the window
+        s = local[:, :width - box + 1]
+        overlaps = whole & (s < reach + length[:, None]) & (s + box > reach)
         best = np.maximum(best, np.where(overlaps, sums * sums / box, 0.0).max(axis=1))
     return best

@@ -78,20 +78,25 @@ def synchronous_level(w: F64, min_period: int, max_period: int, guard: float,
     rises at its own :func:`period`: √(median over the ``reach`` periods on either side of the
     largest ``w²`` within ±``tol`` samples, over :func:`null_power`) / ``guard``, where at least
     two such periods lie in the window; 1 elsewhere (module docstring)."""
-    n_series, n_steps = w.shape
+    n_steps = w.shape[1]
     if n_steps // 2 < min_period:  # not two periods in the window
         return np.ones_like(w)
     per, rho = period(w, min_period, max_period)
+    out = np.ones_like(w)
+    rows = np.flatnonzero(rho >= correlation)  # only series that repeat are looked at
+    if not len(rows):
+        return out
+    w, per = w[rows], per[rows]
     peak = maximum_filter1d(w * w, 2 * tol + 1, axis=1, mode="nearest")
     ks = np.r_[np.arange(-reach, 0), np.arange(1, reach + 1)]
     pos = np.arange(n_steps)[None, :, None] + np.rint(ks[None, :] * per[:, None])[:, None, :]
     pos = pos.astype(np.int64)  # (B, T, K): the same phase, k periods away
     inside = (pos >= 0) & (pos < n_steps)
-    vals = np.take_along_axis(peak, np.clip(pos, 0, n_steps - 1).reshape(n_series, -1), axis=1)
+    vals = np.take_along_axis(peak, np.clip(pos, 0, n_steps - 1).reshape(len(rows), -1), axis=1)
     vals = np.sort(np.where(inside, vals.reshape(pos.shape), np.inf), axis=2)  # valid first
     count = inside.sum(axis=2)
     lo = np.take_along_axis(vals, np.maximum((count - 1) // 2, 0)[:, :, None], axis=2)[:, :, 0]
     hi = np.take_along_axis(vals, np.minimum(count // 2, len(ks) - 1)[:, :, None], axis=2)[:, :, 0]
     median = np.where(count >= 2, 0.5 * (lo + hi), 0.0)
-    level = np.maximum(1.0, np.sqrt(median / null_power(tol)) / guard)
-    return np.where((rho >= correlation)[:, None], level, 1.0)
+    out[rows] = np.maximum(1.0, np.sqrt(median / null_power(tol)) / guard)
+    return out
