@@ -89,3 +89,20 @@ def test_a_window_shorter_than_the_longest_atom() -> None:
     found = best_burst(w, LENGTHS, 4.0, MARGIN, MINIMUM, RATIO)
     assert found.fit.shape == w.shape and np.all(found.start + found.length <= 16)
     assert found.kept.mean() >= 0.8
+
+
+def test_two_bursts_one_look_each() -> None:
+    """What the detector's ``burst_count`` 2 does: a second look after the first burst is taken
+    out finds the other; atoms longer than the boxes they are weighed against
+    (``burst_max_length``) follow a 25-sample burst."""
+    rng = np.random.default_rng(8)
+    noise = rng.standard_normal((30, 200))
+    w = noise + burst(200, 40, 15, 0.3, 4.0) + burst(200, 140, 25, 0.2, 2.5)
+    long_atoms = tuple(range(5, 31))
+    first = best_burst(w, long_atoms, 4.0, MARGIN, MINIMUM, RATIO, LENGTHS)
+    second = best_burst(w - first.fit, long_atoms, 4.0, MARGIN, MINIMUM, RATIO, LENGTHS)
+    assert first.kept.all() and second.kept.all()
+    starts = np.sort(np.stack([first.start, second.start]), axis=0)
+    assert np.all(np.abs(starts[0] - 40) < 10) and np.all(np.abs(starts[1] - 140) < 15)
+    lengths = np.where(first.start > 100, first.length, second.length)  # the long burst's atom
+    assert np.median(lengths) >= 20

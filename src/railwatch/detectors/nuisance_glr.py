@@ -84,6 +84,8 @@ class NuisanceGLRConfig(DetectorConfig):
     burst_ratio: float = 0.5  # ... and (1 + this) times its energy (a large defect's shape)
     burst_minimum: float = 20.0  # ... and this much in all
     burst_oversample: float = 4.0  # atom frequencies per 1 / length (the resolution)
+    burst_max_length: int = 20  # the longest burst, samples (0.2 s at 100 Hz, as a defect's)
+    burst_count: int = 1  # bursts taken out per window and channel, at most
     period_guard: float = 1.25  # impulses: level >= the same phase's, over this (0: off)
     period_correlation: float = 0.2  # ... where the residual's autocorrelation reaches this
     min_period: int = 10  # the impulses' period, samples (0.1-0.5 s at 100 Hz: a wheel
@@ -139,6 +141,7 @@ class NuisanceGLR(Detector):
         counts = scale_counts(self.stats_["null_counts"], fams, self.n_steps_, n_steps)
         norms = [[np.sqrt(L) for L in fam] for fam in fams]  # a box of L white samples: √L
         out = np.empty((n, n_steps, n_channels))
+        atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
 
         def scored(i: int) -> None:  # windows i .. i + step: fitted, whitened, scanned
             part = slice(i, i + step)
@@ -151,13 +154,14 @@ class NuisanceGLR(Detector):
                                  cfg.chirp, cfg.change)
             fl = None if floor is None else series(floor)
             level = noise_level(r, fl, cfg.floor_span)
-            if cfg.bursts:
-                burst = best_burst(r / level, fams[1], cfg.burst_oversample, cfg.burst_margin,
-                                   cfg.burst_minimum, cfg.burst_ratio)
+            for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
+                burst = best_burst(r / level, atom_lengths, cfg.burst_oversample,
+                                   cfg.burst_margin, cfg.burst_minimum, cfg.burst_ratio, fams[1])
                 k = burst.kept
-                if k.any():  # a burst takes no part in the level either
-                    r[k] -= burst.fit[k] * level[k]
-                    level[k] = noise_level(r[k], None if fl is None else fl[k], cfg.floor_span)
+                if not k.any():
+                    break
+                r[k] -= burst.fit[k] * level[k]  # a burst takes no part in the level either
+                level[k] = noise_level(r[k], None if fl is None else fl[k], cfg.floor_span)
             if cfg.period_guard > 0:  # the level rises where the same phase rises every period
                 level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
                                                   cfg.period_guard, cfg.period_correlation)

@@ -106,9 +106,12 @@ def energy_peak(w: F64, length: int) -> NDArray[np.int64]:
 
 
 def best_burst(w: F64, lengths: tuple[int, ...], oversample: float, margin: float,
-               minimum: float, ratio: float = 0.5) -> Burst:
+               minimum: float, ratio: float = 0.5, boxes: tuple[int, ...] | None = None
+               ) -> Burst:
     """The best oscillation atom of every series of the whitened residual ``w`` (B, T) among
-    those covering its :func:`energy_peak`, and whether it is taken out (module docstring)."""
+    those covering its :func:`energy_peak` (atoms of ``lengths`` samples), and whether it is
+    taken out (module docstring) against a spike or a box of ``boxes`` samples (``lengths``
+    if not given)."""
     n_series, n_steps = w.shape
     at = atoms(tuple(lengths), oversample)
     peak = energy_peak(w, min(lengths))
@@ -136,8 +139,8 @@ def best_burst(w: F64, lengths: tuple[int, ...], oversample: float, margin: floa
     local = np.arange(at.span)[None, :]
     atom = coef_c[:, None] * c + coef_s[:, None] * s
     inside = np.isfinite(energy[rows, best])  # a window shorter than every atom has none
-    kept = inside & (e > minimum) & (e - margin > (1 + ratio) * defect_energy(w, first, length,
-                                                                              lengths))
+    defect = defect_energy(w, first, length, lengths if boxes is None else boxes)
+    kept = inside & (e > minimum) & (e - margin > (1 + ratio) * defect)
     fit = np.zeros((n_series, n_steps + 2 * at.centre))
     fit[rows[:, None], peak[:, None] + local] = np.where(kept[:, None], atom, 0.0)
     return Burst(e, first, length, at.freq[best], kept, fit[:, at.centre:at.centre + n_steps])
