@@ -13,9 +13,16 @@ samples, for the sub-sample jitter), over the power that noise alone would give 
 by ``guard``; where that is below the level, the level stays. A defect does not repeat a period
 later and keeps its level; an impulse does.
 
-The period is the window's own: the highest peak of the whitened residual's autocorrelation
-between ``min_period`` and ``max_period`` samples (refined by a parabola). Where there are no
-impulses the neighbours' power is the noise's and the level does not move.
+The period is the window's own: the shortest strong peak of the whitened residual's
+autocorrelation (smoothed, so that a narrow pulse on a period between samples does not split it)
+between ``min_period`` and ``max_period`` samples, refined by a parabola. Only series whose
+autocorrelation there reaches ``correlation`` are followed; elsewhere, and where the
+neighbours' power is the noise's, the level does not move.
+
+The periods are in samples: 10-50 at 100 Hz is a wheel revolution at the benchmark's scale. On a
+recording kept at 2 kHz a revolution (2.9 m for the physics world's 0.46 m wheel radius,
+`railwatch.physics.vehicle`) lasts 100-290 ms at 10-30 m/s, 190-580 samples, and the range
+must be set to match.
 """
 
 from __future__ import annotations
