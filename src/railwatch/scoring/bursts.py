@@ -75,6 +75,15 @@ class Atoms:
     g12: F64
     g22: F64
 
+    @property
+    def single(self) -> tuple[NDArray[np.float32], ...]:
+        """cos, sin, g11, 2 g12 and g22 in single precision, for the search (made once)."""
+        if "_single" not in self.__dict__:
+            object.__setattr__(self, "_single", tuple(
+                a.astype(np.float32) for a in (self.cos, self.sin, self.g11, 2 * self.g12,
+                                               self.g22)))
+        return self.__dict__["_single"]  # type: ignore[no-any-return]
+
 
 @lru_cache(maxsize=8)
 def atoms(lengths: tuple[int, ...], oversample: float) -> Atoms:
@@ -117,11 +126,12 @@ def best_burst(w: F64, lengths: tuple[int, ...], oversample: float, margin: floa
     peak = energy_peak(w, min(lengths))
     padded = np.pad(w, ((0, 0), (at.centre, at.centre)))
     seg = padded[np.arange(n_series)[:, None], peak[:, None] + np.arange(at.span)[None, :]]
-    seg32 = seg.astype(np.float32)  # the search in single precision, the fit in double
-    bc, bs = seg32 @ at.cos.astype(np.float32), seg32 @ at.sin.astype(np.float32)  # (B, A)
-    energy = at.g11.astype(np.float32) * bc * bc
-    energy += (2 * at.g12).astype(np.float32) * bc * bs
-    energy += at.g22.astype(np.float32) * bs * bs
+    cos32, sin32, g11, g12x2, g22 = at.single  # the search in single precision, the fit in double
+    seg32 = seg.astype(np.float32)
+    bc, bs = seg32 @ cos32, seg32 @ sin32  # (B, A)
+    energy = g11 * bc * bc
+    energy += g12x2 * bc * bs
+    energy += g22 * bs * bs
     start = peak[:, None] - at.centre + at.first[None, :]  # (B, A): in the window
     edge = (peak < at.centre) | (peak > n_steps - at.span + at.centre)
     if edge.any():  # atoms that leave the window are not atoms of it
