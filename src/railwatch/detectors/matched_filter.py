@@ -72,9 +72,8 @@ from railwatch.scoring.glr import (
     Family,
     effective_counts,
     effective_energy_count,
-    energy_z,
+    energy_score,
     families,
-    log10_familywise_p,
     scale_counts,
     scan,
 )
@@ -285,8 +284,8 @@ class MatchedFilter(Detector):
         if energy:
             m = scale_counts(self.stats_["energy_count"], (energy,), self.n_steps_, n_steps)[0]
             if np.isfinite(m):
-                ze = energy_z(w.reshape(n, n_channels, n_steps).transpose(0, 2, 1), energy)
-                np.maximum(out, -log10_familywise_p(ze, float(m)), out=out)
+                np.maximum(out, energy_score(w.reshape(n, n_channels, n_steps).transpose(0, 2, 1),
+                                             energy, float(m)), out=out)
         return out
 
     def _fit(self, X: FloatArray, context: dict[str, FloatArray]) -> None:

@@ -38,7 +38,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,10 +53,26 @@ from railwatch.detectors.api import (
     peak_standardized,
     peak_statistics,
 )
+from railwatch.detectors.matched_filter import (
+    CHUNK_BYTES,
+    MatchedFilter,
+    filter_correlate,
+    prediction_error,
+    robust_ar,
+    template_norms,
+)
 from railwatch.errors import RailwatchError
 from railwatch.recordings.floor import NOISE_FLOOR
 from railwatch.scoring.bursts import best_burst
-from railwatch.scoring.glr import Family, effective_counts, families, scale_counts, scan
+from railwatch.scoring.glr import (
+    Family,
+    effective_counts,
+    effective_energy_count,
+    energy_score,
+    families,
+    scale_counts,
+    scan,
+)
 from railwatch.scoring.harmonic import MAD_TO_STD, harmonic_fit
 from railwatch.scoring.periodic import synchronous_level
 from railwatch.scoring.residual import changepoint_scale
@@ -70,12 +86,18 @@ MAX_THREADS = 2
 
 @dataclass(frozen=True)
 class NuisanceGLRConfig(DetectorConfig):
+    harmonic: bool = True  # fit the harmonic model (step 1); off: the predictor alone
     poly: int = 2  # degree of the harmonic's amplitude polynomials (2: drift and curvature)
     chirp: bool = True  # the harmonic's frequency changes linearly across the window
     change: float = 0.1  # a two-sided model where it lowers the residual's rms by this share
     huber_k: float = 1.345  # Huber threshold in robust standard deviations (95 % efficiency)
     irls_iterations: int = 3  # reweighting passes after the first least-squares fit
     min_cycles: float = 0.5  # spectral peaks under this many cycles per window are ignored
+    order: int = 0  # taps of a robust linear predictor whitening what the harmonic left (0:
+    # none, the benchmark's white noise; field scale: the track's coloured response, 8 ms)
+    ridge: float = 0.1  # ... its relative ridge (the matched filter's)
+    change_point: bool = True  # without a floor, the level changes once per window (stage 4)
+    energy_boxes: tuple[int, ...] = ()  # lengths of the energy family (none: off; field scale)
     floor_span: int = 10  # the noise floor's running median: ±samples (0.1 s at 100 Hz)
     min_box: int = 5  # shortest local deviation, samples (spec: 0.05 s at 100 Hz)
     max_box: int = 20  # longest local deviation, samples (spec: 0.2 s at 100 Hz)
@@ -93,14 +115,22 @@ class NuisanceGLRConfig(DetectorConfig):
     null_windows: int = 10000  # Monte Carlo N(0, 1) windows calibrating each family
     null_alpha: float = 0.05  # tail level at which each family's calibration is exact
 
+    def __post_init__(self) -> None:
+        try:  # lengths given as text (--set, a saved model's JSON) become numbers
+            object.__setattr__(self, "energy_boxes", tuple(int(L) for L in self.energy_boxes))
+        except (TypeError, ValueError):
+            pass  # checked when the detector is used
+
 
 def noise_level(residual: NDArray[np.float64], floor: NDArray[np.float64] | None,
-                span: int) -> NDArray[np.float64]:
+                span: int, change: bool = True) -> NDArray[np.float64]:
     """The residual's noise std at every sample (B, T): √(running median of ``floor``,
     ±``span`` samples) where a floor (B, T, power) is given, else a level with at most one change
     per series; times the robust scale (1.4826 MAD) of the residual over that shape, one per
     series. ``residual / noise_level(...)`` is the whitened residual."""
-    if floor is None:
+    if floor is None and not change:
+        level = np.ones_like(residual)
+    elif floor is None:
         level = changepoint_scale(residual[:, :, None])[:, :, 0]
     else:
         level = np.sqrt(median_filter(np.maximum(floor, 0.0), size=(1, 2 * span + 1),
@@ -119,11 +149,24 @@ class NuisanceGLR(Detector):
     fixed_length: ClassVar[bool] = False  # per-window fits; the calibration rescales to any T
     uses: ClassVar[tuple[str, ...]] = (NOISE_FLOOR,)
 
+    @classmethod
+    def field_scale(cls, fs: float) -> dict[str, Any]:
+        """At field scale (a recording's own rate ``fs``): the matched filter's predictor, energy
+        family and one noise scale per window (:meth:`MatchedFilter.field_scale`), a harmonic
+        without the one-sided speed jump, no bursts and no synchronous level (module
+        docstring, "At field scale")."""
+        return {**MatchedFilter.field_scale(fs), "change": 0.0, "bursts": False,
+                "period_guard": 0.0}
+
     def _families(self) -> tuple[Family, ...]:
         cfg = self.config
         if not 1 < cfg.min_box <= cfg.max_box:
             raise RailwatchError(
                 f"need 1 < min_box <= max_box, got min_box={cfg.min_box}, max_box={cfg.max_box}")
+        if cfg.order < 0 or not all(isinstance(L, int) and L >= 2 for L in cfg.energy_boxes):
+            raise RailwatchError("order must be at least 0 and energy_boxes box lengths of at "
+                                 f"least 2 samples, got order={cfg.order}, energy_boxes="
+                                 f"{','.join(map(str, cfg.energy_boxes))}")
         if cfg.poly < 0 or cfg.floor_span < 0:
             raise RailwatchError(f"poly and floor_span must be at least 0, got poly={cfg.poly}, "
                                  f"floor_span={cfg.floor_span}")
@@ -134,14 +177,20 @@ class NuisanceGLR(Detector):
         (N, T, C): the noise floor of each sample, if known."""
         cfg = self.config
         n, n_steps, n_channels = X.shape
-        if n_steps < 4 * (cfg.poly + 2):
+        if n_steps < max(4 * (cfg.poly + 2), 2 * cfg.order + 2):
             raise RailwatchError(f"windows of {n_steps} steps are too short for the harmonic "
-                                 f"model of degree {cfg.poly}: need {4 * (cfg.poly + 2)}")
+                                 f"model of degree {cfg.poly} and a predictor of order "
+                                 f"{cfg.order}: need {max(4 * (cfg.poly + 2), 2 * cfg.order + 2)}")
         fams = self._families()
         counts = scale_counts(self.stats_["null_counts"], fams, self.n_steps_, n_steps)
         norms = [[np.sqrt(L) for L in fam] for fam in fams]  # a box of L white samples: √L
         out = np.empty((n, n_steps, n_channels))
         atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
+        energy_count = None
+        if cfg.energy_boxes:
+            m = scale_counts(self.stats_["energy_count"], (cfg.energy_boxes,), self.n_steps_,
+                             n_steps)[0]
+            energy_count = float(m) if np.isfinite(m) else None
 
         def scored(i: int) -> None:  # windows i .. i + step: fitted, whitened, scanned
             part = slice(i, i + step)
@@ -151,9 +200,13 @@ class NuisanceGLR(Detector):
 
             x = series(X)
             r = x - harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
-                                 cfg.chirp, cfg.change)
+                                 cfg.chirp, cfg.change) if cfg.harmonic else x
+            if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
+                coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
+                r = prediction_error(r, coef)
+                c = np.concatenate([np.ones((len(r), 1)), -coef[:, :-1]], axis=1)
             fl = None if floor is None else series(floor)
-            level = noise_level(r, fl, cfg.floor_span)
+            level = noise_level(r, fl, cfg.floor_span, cfg.change_point)
             for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
                 burst = best_burst(r / level, atom_lengths, cfg.burst_oversample,
                                    cfg.burst_margin, cfg.burst_minimum, cfg.burst_ratio, fams[1])
@@ -166,10 +219,23 @@ class NuisanceGLR(Detector):
                 level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
                                                   cfg.period_guard, cfg.period_correlation)
             w = r / level
-            out[part] = scan(w.reshape(-1, n_channels, n_steps).transpose(0, 2, 1), fams, norms,
-                             counts)
+            ntc = (-1, n_channels, n_steps)
+            if cfg.order:
+                g = filter_correlate(w, c).reshape(ntc).transpose(0, 2, 1)
+                chunk_norms = [[v.reshape(-1, n_channels, 1).transpose(0, 2, 1)
+                                for v in template_norms(c, fam)] for fam in fams]
+                out[part] = scan(g, fams, chunk_norms, counts)
+            else:
+                out[part] = scan(w.reshape(ntc).transpose(0, 2, 1), fams, norms, counts)
+            if energy_count is not None:
+                np.maximum(out[part], energy_score(w.reshape(ntc).transpose(0, 2, 1),
+                                                   cfg.energy_boxes, energy_count), out=out[part])
 
-        step = max(1, CHUNK_SERIES // n_channels)
+        series_at_once = CHUNK_SERIES
+        if cfg.order:  # the predictor's design matrices (series, 2 (T - p), p + 1) in cache
+            per_series = 2 * (n_steps - cfg.order) * (cfg.order + 1) * 8
+            series_at_once = min(series_at_once, CHUNK_BYTES // per_series)
+        step = max(1, series_at_once // n_channels)
         starts = range(0, n, step)
         workers = min(len(starts), len(os.sched_getaffinity(0)), MAX_THREADS)
         if workers > 1:  # numpy lets go of the GIL in the fits: the cores it may use share them
@@ -185,6 +251,9 @@ class NuisanceGLR(Detector):
         cfg = self.config
         self.stats_["null_counts"] = effective_counts(
             self.n_steps_, self._families(), cfg.null_windows, cfg.null_alpha, cfg.seed)
+        if cfg.energy_boxes:
+            self.stats_["energy_count"] = np.array([effective_energy_count(
+                self.n_steps_, cfg.energy_boxes, cfg.null_windows, cfg.null_alpha, cfg.seed)])
         self.stats_.update(peak_statistics(self.raw_scores(X, context.get(NOISE_FLOOR))))
 
     def _score(self, X: FloatArray, context: dict[str, FloatArray], extras: bool) -> Scores:

@@ -265,6 +265,13 @@ def energy_z(w: FloatArray, lengths: Family) -> FloatArray:
     return _covering(stats, w.shape)
 
 
+def energy_score(w: FloatArray, lengths: Family, count: float) -> FloatArray:
+    """The energy family's calibrated score (N, T, C): ``−log10`` family-wise p of
+    :func:`energy_z` on the whitened residual ``w``, ``count`` its effective number of positions
+    (:func:`effective_energy_count`)."""
+    return -log10_familywise_p(energy_z(w, lengths), count)
+
+
 def effective_energy_count(n_steps: int, lengths: Family, n_windows: int, alpha: float,
                            seed: int) -> float:
     """Effective number of independent positions of the energy family (:func:`energy_z`), by
