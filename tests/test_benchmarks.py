@@ -101,3 +101,29 @@ def test_the_runner_lists_and_refuses_in_one_line() -> None:
     helped = subprocess.run([sys.executable, "-m", "benchmarks", "matched-filter-ridge", "--help"],
                             cwd=REPO, text=True, capture_output=True, check=True).stdout
     assert "--out" in helped
+
+
+def test_the_physics_sweep_forms_events_as_detect_does(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """``physics.runs_above`` (the common false rate's events from a pass's scores) gives the
+    events of ``detect``'s tracker, fed in blocks, on scores with runs near the merge gap."""
+    monkeypatch.syspath_prepend(str(REPO))
+    import numpy as np
+    from benchmarks.physics import runs_above
+
+    from railwatch.detection.stream import EventTracker
+
+    rng = np.random.default_rng(0)
+    t = np.arange(60000) / 2000.0
+    point = rng.standard_normal(60000)
+    for start in rng.integers(0, 59000, 40):  # bursts, some closer than 0.5 s
+        point[start:start + rng.integers(1, 400)] += 6.0
+    tracker = EventTracker(4.5, 1000, ("a",), ("g",))
+    events = []
+    for i in range(0, 60000, 3000):
+        events += tracker.feed(point[i:i + 3000], point[i:i + 3000, None], t[i:i + 3000], None,
+                               1 / 2000)
+    events += tracker.close()
+    got = runs_above(t, point, 4.5)
+    assert len(got) == len(events) > 10
+    for e, g in zip(events, got, strict=True):
+        assert abs(e.start_s - g["start_s"]) < 1e-9 and abs(e.end_s - g["end_s"]) < 1e-9

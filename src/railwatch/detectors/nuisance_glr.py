@@ -31,6 +31,13 @@ channel (vectorised over the N·C series, chunks of windows on up to two threads
    the median and MAD-scale of the window maxima over the training windows (labels unused).
 
 The doc page gives what each part recovers, and what is still lost at stages 7 and 8.
+
+**At field scale** (a recording kept at its own rate; :meth:`NuisanceGLR.field_scale`) the
+vehicle's response to the rail is broadband and coloured, not one sinusoid, and a squat is
+itself a short ringing: a robust linear predictor (``order``, the matched filter's) whitens what
+the harmonic model leaves and the spike and box tests are matched to its shapes; the energy
+family, one noise scale per window, no speed jump inside a window, no bursts and no synchronous
+level (``docs/nuisance-glr.md``, "At field scale").
 """
 
 from __future__ import annotations
