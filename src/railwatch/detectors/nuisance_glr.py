@@ -160,8 +160,8 @@ class NuisanceGLR(Detector):
     def field_scale(cls, fs: float) -> dict[str, Any]:
         """At field scale (a recording's own rate ``fs``): the matched filter's predictor, energy
         family and one noise scale per window (:meth:`MatchedFilter.field_scale`), a harmonic
-        without the one-sided speed jump, no bursts and no synchronous level (module
-        docstring, "At field scale")."""
+        with no speed jump inside a window (no sinusoid of its own on each side), no bursts and
+        no synchronous level (module docstring, "At field scale")."""
         return {**MatchedFilter.field_scale(fs), "change": 0.0, "bursts": False,
                 "period_guard": 0.0}
 
