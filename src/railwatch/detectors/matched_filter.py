@@ -77,14 +77,13 @@ from railwatch.scoring.glr import (
     scale_counts,
     scan,
 )
-from railwatch.scoring.residual import masked_median
+from railwatch.scoring.residual import MAD_TO_STD, masked_median
 
 F64 = NDArray[np.float64]
 #: At field scale (:meth:`MatchedFilter.field_scale`): the predictor's memory (s) and the
 #: energy family's box durations (s).
 FIELD_MEMORY_S = 0.008
 FIELD_ENERGY_S = (0.004, 0.008, 0.016, 0.032)
-MAD_TO_STD = 1.4826  # σ = 1.4826 · median |e − median e| for Gaussian e
 CHUNK_BYTES = 4 << 20  # the predictors' design matrices of a chunk of windows (raw_scores)
 
 

@@ -80,9 +80,9 @@ from railwatch.scoring.glr import (
     scale_counts,
     scan,
 )
-from railwatch.scoring.harmonic import MAD_TO_STD, harmonic_fit
+from railwatch.scoring.harmonic import harmonic_fit
 from railwatch.scoring.periodic import synchronous_level
-from railwatch.scoring.residual import changepoint_scale
+from railwatch.scoring.residual import MAD_TO_STD, changepoint_scale
 
 #: Series fitted at once: bounds the design matrices (series, T, 10) to a few MB.
 CHUNK_SERIES = 512

@@ -27,8 +27,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from railwatch.scoring.residual import MAD_TO_STD
+
 F64 = NDArray[np.float64]
-MAD_TO_STD = 1.4826
 #: The band around a window's spectral peak whose phase :func:`phase_break` follows: the paper's
 #: speed change multiplies the frequency by 0.5-1.5 (a factor of up to 3 between the two sides);
 #: a factor of 2 each way keeps most of both and drops most of the noise.

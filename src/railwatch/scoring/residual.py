@@ -44,6 +44,9 @@ WINSOR = 9.0
 PENALTY = 1.5
 #: Median of |N(0, 1)|: robust std = median |r| / MAD_NORMAL.
 MAD_NORMAL = 0.6744897501960817
+#: σ = 1.4826 · median |e − median e| for Gaussian e (1 / MAD_NORMAL to four decimals: the
+#: harmonic model's and the matched filter's robust scale).
+MAD_TO_STD = 1.4826
 
 
 def changepoint_scale(residual: NDArray[np.floating], min_segment: int = MIN_SEGMENT
