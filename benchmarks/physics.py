@@ -294,14 +294,14 @@ def at_common_rate(folders: list[Path], scan: str | None, rate: float = COMMON_R
             else:
                 z = np.load(folder / scan / f"{name}.profile.npz")
                 t, point = z["time_s"], z["channel_score"].max(axis=1).astype(np.float64)
-            passes.append((folder, name, t, point, read_csv(folder / f"{name}.defects.csv"),
-                           read_csv(folder / f"{name}.features.csv"), minutes(folder, name)))
+            passes.append((t, point, read_csv(folder / f"{name}.defects.csv"),
+                           read_csv(folder / f"{name}.features.csv"), minutes(folder, name),
+                           echo_offsets(folder)))
 
     def at(threshold: float) -> tuple[list[dict[str, Any]], float]:
         crossings, false, total = [], 0.0, 0.0
-        for folder, _, t, point, defects, features, mins in passes:
-            s = score_events(runs_above(t, point, threshold), defects, features, mins,
-                             echo_offsets(folder))
+        for t, point, defects, features, mins, echoes in passes:
+            s = score_events(runs_above(t, point, threshold), defects, features, mins, echoes)
             false, total = false + s.false_per_minute * mins, total + mins
             crossings += [{"kind": r["kind"], "depth": abs(float(r["depth_mm"])),
                            "found": s.found[int(r["defect"])]} for r in defects]
@@ -310,7 +310,7 @@ def at_common_rate(folders: list[Path], scan: str | None, rate: float = COMMON_R
     # From the top down (far below, runs merge into a few long events that cover everything):
     # the first of thresholds at ever more samples above whose false rate passes ``rate``,
     # then bisection between it and the one before.
-    scores = np.concatenate([p[3][np.isfinite(p[3])] for p in passes])
+    scores = np.concatenate([p[1][np.isfinite(p[1])] for p in passes])
     grid = np.quantile(scores, 1 - np.geomspace(1e-7, 0.2, 40))
     lo, hi = grid[-1], grid[0]
     for below, above in zip(grid[1:], grid[:-1], strict=True):
