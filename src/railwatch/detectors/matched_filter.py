@@ -155,6 +155,12 @@ def prediction_error(x: F64, coef: F64) -> F64:
     return np.concatenate([bwd, fwd], axis=1)
 
 
+def error_filter(coef: F64) -> F64:
+    """The prediction-error filter ``c = (1, −a_1, …, −a_p)`` (B, p + 1) of the predictor's
+    coefficients (:func:`robust_ar`; the intercept left out)."""
+    return np.concatenate([np.ones((len(coef), 1)), -coef[:, :-1]], axis=1)
+
+
 def noise_scale(e: F64, min_segment: int, winsor: float) -> F64:
     """Per-sample robust noise std (B, T) with one change point (spec stage 4).
 
@@ -271,7 +277,7 @@ class MatchedFilter(Detector):
         coef = robust_ar(x, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
         e = prediction_error(x, coef)  # (B, T)
         w = e / noise_scale(e, cfg.min_segment if cfg.change_point else n_steps, cfg.winsor)
-        c = np.concatenate([np.ones((len(x), 1)), -coef[:, :-1]], axis=1)  # (B, p + 1)
+        c = error_filter(coef)  # (B, p + 1)
         g = filter_correlate(w, c)
         to_ntc = (n, n_channels, 1)
         norms = [[v.reshape(to_ntc).transpose(0, 2, 1) for v in template_norms(c, fam)]

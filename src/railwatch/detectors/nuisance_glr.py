@@ -63,6 +63,7 @@ from railwatch.detectors.api import (
 from railwatch.detectors.matched_filter import (
     CHUNK_BYTES,
     MatchedFilter,
+    error_filter,
     filter_correlate,
     prediction_error,
     robust_ar,
@@ -211,7 +212,7 @@ class NuisanceGLR(Detector):
             if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
                 coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
                 r = prediction_error(r, coef)
-                c = np.concatenate([np.ones((len(r), 1)), -coef[:, :-1]], axis=1)
+                c = error_filter(coef)
             fl = None if floor is None else series(floor)
             level = noise_level(r, fl, cfg.floor_span, cfg.change_point)
             for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
