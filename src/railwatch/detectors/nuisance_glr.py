@@ -132,14 +132,16 @@ class NuisanceGLRConfig(DetectorConfig):
 
 def noise_level(residual: NDArray[np.float64], floor: NDArray[np.float64] | None,
                 span: int, change: bool = True) -> NDArray[np.float64]:
-    """The residual's noise std at every sample (B, T): √(running median of ``floor``,
-    ±``span`` samples) where a floor (B, T, power) is given, else a level with at most one change
-    per series; times the robust scale (1.4826 MAD) of the residual over that shape, one per
-    series. ``residual / noise_level(...)`` is the whitened residual."""
-    if floor is None and not change:
+    """The residual's noise std at every sample (B, T). Without a floor, a level with at most one
+    change per series (``change``; its two sides' trimmed standard deviations are already the
+    noise's size), or one robust scale (1.4826 MAD) per series. With a floor (B, T, power), its
+    shape in time (√ of its running median over ±``span`` samples) times the robust scale of the
+    residual over that shape, one per series. ``residual / noise_level(...)`` is the whitened
+    residual."""
+    if floor is None and change:  # a second, window-wide scale on top only adds its own error
+        return changepoint_scale(residual[:, :, None])[:, :, 0]
+    if floor is None:
         level = np.ones_like(residual)
-    elif floor is None:
-        level = changepoint_scale(residual[:, :, None])[:, :, 0]
     else:
         level = np.sqrt(median_filter(np.maximum(floor, 0.0), size=(1, 2 * span + 1),
                                       mode="nearest"))
@@ -180,6 +182,41 @@ class NuisanceGLR(Detector):
                                  f"floor_span={cfg.floor_span}")
         return families(cfg.min_box, cfg.max_box)
 
+    def nuisance(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Step 1: the harmonic model fitted to every series ``x`` (B, T); zeros without it."""
+        cfg = self.config
+        if not cfg.harmonic:
+            return np.zeros_like(x)
+        return harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
+                            cfg.chirp, cfg.change)
+
+    def whitened(self, r: NDArray[np.float64], floor: NDArray[np.float64] | None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """Steps 2-4 on the residual ``r`` (B, T) of every series (a copy is changed): with
+        ``order``, the predictor's prediction error and its error filter (B, order + 1) that the
+        tests are matched to (else None); then divided by the noise level, with the bursts taken
+        out and the level raised where the same phase repeats. ``floor``: (B, T) or None."""
+        cfg = self.config
+        r, c = np.array(r, dtype=np.float64), None
+        if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
+            coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
+            r, c = prediction_error(r, coef), error_filter(coef)
+        level = noise_level(r, floor, cfg.floor_span, cfg.change_point)
+        atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
+        for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
+            burst = best_burst(r / level, atom_lengths, cfg.burst_oversample, cfg.burst_margin,
+                               cfg.burst_minimum, cfg.burst_ratio, self._families()[1])
+            k = burst.kept
+            if not k.any():
+                break
+            r[k] -= burst.fit[k] * level[k]  # a burst takes no part in the level either
+            level[k] = noise_level(r[k], None if floor is None else floor[k], cfg.floor_span,
+                                   cfg.change_point)
+        if cfg.period_guard > 0:  # the level rises where the same phase rises every period
+            level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
+                                              cfg.period_guard, cfg.period_correlation)
+        return r / level, c
+
     def raw_scores(self, X: FloatArray, floor: FloatArray | None = None) -> NDArray[np.floating]:
         """Unstandardised channel scores (N, T, C): calibrated −log10 family-wise p; ``floor``
         (N, T, C): the noise floor of each sample, if known."""
@@ -193,7 +230,6 @@ class NuisanceGLR(Detector):
         counts = scale_counts(self.stats_["null_counts"], fams, self.n_steps_, n_steps)
         norms = [[np.sqrt(L) for L in fam] for fam in fams]  # a box of L white samples: √L
         out = np.empty((n, n_steps, n_channels))
-        atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
         energy_count = None
         if cfg.energy_boxes:
             m = scale_counts(self.stats_["energy_count"], (cfg.energy_boxes,), self.n_steps_,
@@ -207,28 +243,9 @@ class NuisanceGLR(Detector):
                 return a[part].transpose(0, 2, 1).reshape(-1, n_steps).astype(np.float64)
 
             x = series(X)
-            r = x - harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
-                                 cfg.chirp, cfg.change) if cfg.harmonic else x
-            if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
-                coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
-                r = prediction_error(r, coef)
-                c = error_filter(coef)
-            fl = None if floor is None else series(floor)
-            level = noise_level(r, fl, cfg.floor_span, cfg.change_point)
-            for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
-                burst = best_burst(r / level, atom_lengths, cfg.burst_oversample,
-                                   cfg.burst_margin, cfg.burst_minimum, cfg.burst_ratio, fams[1])
-                k = burst.kept
-                if not k.any():
-                    break
-                r[k] -= burst.fit[k] * level[k]  # a burst takes no part in the level either
-                level[k] = noise_level(r[k], None if fl is None else fl[k], cfg.floor_span)
-            if cfg.period_guard > 0:  # the level rises where the same phase rises every period
-                level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
-                                                  cfg.period_guard, cfg.period_correlation)
-            w = r / level
+            w, c = self.whitened(x - self.nuisance(x), None if floor is None else series(floor))
             ntc = (-1, n_channels, n_steps)
-            if cfg.order:
+            if c is not None:  # the predictor's shapes (order > 0)
                 g = filter_correlate(w, c).reshape(ntc).transpose(0, 2, 1)
                 chunk_norms = [[v.reshape(-1, n_channels, 1).transpose(0, 2, 1)
                                 for v in template_norms(c, fam)] for fam in fams]
