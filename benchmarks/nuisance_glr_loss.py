@@ -19,7 +19,11 @@ its own steps 2-4 (`NuisanceGLR.whitened`: the noise level, bursts and the synch
 Rows A-E take the largest calibrated score over channels. Development seeds: `generate`'s 201
 (2,000 training windows, for F's channel statistics) and 202 (2,000 test windows); the standard
 preset's seeds (0-2) are not used. A second table splits stage 5 by the anomaly's kind and the
-channel group it lies on. Writes docs/results/detectors/nuisance-glr-loss.md.
+channel group it lies on. A third asks what the stage's own nuisance costs when everything else
+is known: at stage 7 (bursts) and 8 (impulses), the residual of everything but it (the stage
+before's nuisance: the generator's stages nest under one seed), divided by the true level or
+whitened by nuisance-glr's steps 2-4 (its burst model, its synchronous level). Writes
+docs/results/detectors/nuisance-glr-loss.md.
 """
 
 from __future__ import annotations
@@ -58,6 +62,8 @@ ROWS = {
     "F": "nuisance-glr (channels standardised)",
 }
 GROUPS = ("axle", "bogie", "body")
+#: The stages whose own nuisance the third table leaves unknown, and what it is.
+BLIND = {7: "bursts", 8: "impulses"}
 
 F64 = NDArray[np.float64]
 
@@ -93,6 +99,20 @@ def row_scores(det: NuisanceGLR, ws: WindowSet, row: str) -> F64:
     return raw.max(axis=(1, 2))
 
 
+def blind_scores(det: NuisanceGLR, ws: WindowSet, before: WindowSet, level: str) -> F64:
+    """Instance scores (N,) of the residual of everything but the stage's own nuisance (``ws``
+    less ``before``'s nuisance, the same seed one stage earlier), divided by the true ``level``
+    or whitened by nuisance-glr's steps 2-4 (``level`` = "estimated")."""
+    assert before.nuisance is not None and ws.noise_std is not None
+    n, t, c = ws.X.shape
+    r = series(ws.X) - series(before.nuisance)
+    w = r / series(ws.noise_std) if level == "true" else det.whitened(r, None)[0]
+    fams = families(det.config.min_box, det.config.max_box)
+    counts = scale_counts(det.stats_["null_counts"], fams, det.n_steps_, t)
+    norms = [[np.sqrt(L) for L in fam] for fam in fams]
+    return scan(w.reshape(n, c, t).transpose(0, 2, 1), fams, norms, counts).max(axis=(1, 2))
+
+
 def by_kind_and_group(ws: WindowSet, scores: F64) -> dict[str, float]:
     """ROC-AUC of each anomaly kind on each channel group against all normal windows."""
     y, _, kinds, channel = ws.labels()
@@ -116,6 +136,7 @@ def main() -> None:
     start = time.time()
     table: dict[str, dict[int, float]] = {row: {} for row in ROWS}
     split: dict[str, dict[str, float]] = {}
+    blind: dict[int, dict[str, float]] = {}
     for stage in stages:
         train = generate(stage, args.n, TRAIN_SEED)
         test = generate(stage, args.n, TEST_SEED, components=True)
@@ -126,6 +147,11 @@ def main() -> None:
             table[row][stage] = float(roc_auc_score(test.y, scores))
             if stage == 5 and row in "ABDEF":
                 split[row] = by_kind_and_group(test, scores)
+        if stage in BLIND:
+            before = generate(stage - 1, args.n, TEST_SEED, components=True)
+            blind[stage] = {level: float(roc_auc_score(test.y, blind_scores(det, test, before,
+                                                                            level)))
+                            for level in ("true", "estimated")}
         print(f"stage {stage}: " + ", ".join(f"{r} {table[r][stage]:.3f}" for r in ROWS),
               flush=True)
     lines = [
@@ -155,6 +181,21 @@ def main() -> None:
         for row, values in split.items():
             lines.append(f"| {row}. {ROWS[row]} | " + " | ".join(f"{values[k]:.3f}"
                                                                 for k in cols) + " |")
+    if blind:
+        at = list(blind)
+        lines += ["", "What the stage's own nuisance costs when everything else is known (the "
+                  "residual of everything but it):", "",
+                  "| | " + " | ".join(f"stage {s} ({BLIND[s]})" for s in at) + " |",
+                  "|---|" + "---|" * len(at),
+                  "| A. oracle | " + " | ".join(f"{table['A'][s]:.3f}" for s in at) + " |",
+                  "| B. true residual, whitened by nuisance-glr | "
+                  + " | ".join(f"{table['B'][s]:.3f}" for s in at) + " |",
+                  "| the stage's own nuisance unknown, true level, nothing to model it | "
+                  + " | ".join(f"{blind[s]['true']:.3f}" for s in at) + " |",
+                  "| ... whitened by nuisance-glr (its level, burst model and synchronous "
+                  "level) | " + " | ".join(f"{blind[s]['estimated']:.3f}" for s in at) + " |",
+                  "| F. nuisance-glr | " + " | ".join(f"{table['F'][s]:.3f}" for s in at)
+                  + " |"]
     print(write_markdown(args.out, lines))
 
 
