@@ -35,7 +35,7 @@ import numpy as np
 from benchmarks.common import command, match, railwatch
 from railwatch.atomic import atomic_csv
 from railwatch.detection.oracle import null_threshold, oracle_events
-from railwatch.synthetic.runs import DEFECT_FIELDS, synthesize_run
+from railwatch.synthetic.runs import DEFECT_FIELDS, Variation, synthesize_run
 
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
@@ -56,14 +56,16 @@ TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 
 
 def oracle_row(work: Path, stage: int, loud: bool, seed: int,  # type: ignore[type-arg]
-               threshold: float, noise: str = "known") -> dict:
+               threshold: float, noise: str = "known", variation: Variation | None = None,
+               name: str = "") -> dict:
     """The oracle on the run of ``stage``, ``seed`` (remade with its components, its defects
     written to ``work``): its events above ``threshold`` (:func:`null_threshold`), its bound,
     and, with ``loud`` stretches, the split by loud and quiet track; ``noise``: known, or
-    estimated from the residual (`railwatch.detection.oracle.local_std`)."""
+    estimated from the residual (`railwatch.detection.oracle.local_std`); ``variation``: the
+    run made differently (``name`` tells its files apart)."""
     run = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=FS, stage=stage, loud_stretches=loud,
-                         components=True)
-    truth = work / f"oracle-stage{stage}{'-loud' if loud else ''}-seed{seed}.defects.csv"
+                         components=True, variation=variation)
+    truth = work / f"oracle{name}-stage{stage}{'-loud' if loud else ''}-seed{seed}.defects.csv"
     atomic_csv(truth, DEFECT_FIELDS, run.defects)
     low = [e.to_dict() for e in oracle_events(run, threshold=1.0, noise=noise)]
     events = [e for e in low if e["score"] >= threshold]
@@ -71,7 +73,8 @@ def oracle_row(work: Path, stage: int, loud: bool, seed: int,  # type: ignore[ty
     return {"detector": "oracle", "found": found, "false_min": false / RUN_MINUTES,
             "channel": channel, "events": len(events), "threshold": threshold,
             "bound": best_at_false_rate(low, truth, TARGET_FALSE), "fit_s": float("nan"),
-            "rtf": float("nan"), **(by_stretch(events, truth, stage, seed) if loud else {})}
+            "rtf": float("nan"),
+            **(by_stretch(events, truth, stage, seed, variation) if loud else {})}
 
 
 def run_file(work: Path, kind: str, seed: int) -> Path:
@@ -105,14 +108,16 @@ def best_at_false_rate(events: list[dict], truth: Path,  # type: ignore[type-arg
 
 
 def by_stretch(events: list[dict], truth: Path, stage: int,  # type: ignore[type-arg]
-               seed: int) -> dict[str, float]:
+               seed: int, variation: Variation | None = None) -> dict[str, float]:
     """Defects found and false events per minute inside the loud stretches and outside them
-    (the stretches re-drawn from the run's seed: they are not in the recording)."""
+    (the stretches re-drawn from the run's seed and ``variation``: they are not in the
+    recording)."""
     import csv
 
     fs = 200.0  # the stretches depend on the track position only, not on the rate
-    loud = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage, loud_stretches=True)
-    quiet = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage)
+    loud = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage, loud_stretches=True,
+                          variation=variation)
+    quiet = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=fs, stage=stage, variation=variation)
     # white noise differs only on rough sections; bursts, impulses and defects cancel
     is_loud = np.abs(loud.data - quiet.data).max(axis=1) > 0
 

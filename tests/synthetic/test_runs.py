@@ -111,3 +111,41 @@ def test_components_are_the_run_without_its_white_noise_and_defects() -> None:
     quiet = run(stage=8, components=True)
     ratio = r.noise_std / quiet.noise_std
     assert ratio.min() >= 1.0 - 1e-6 and STRETCH_GAIN[0] - 1e-6 <= ratio.max() <= STRETCH_GAIN[1]
+
+
+def test_a_run_made_differently_changes_what_it_says_and_nothing_else() -> None:
+    """:class:`Variation`: the default is the run as made; each variation changes its own part
+    (the same seed keeps the rest: defects' times and sizes, the noise)."""
+    from railwatch.synthetic.runs import Variation, deviation
+
+    base = run(components=True)
+    same = run(components=True, variation=Variation())
+    np.testing.assert_array_equal(base.data, same.data)
+    # harmonics: another vibration, the same noise and defects
+    harm = run(components=True, variation=Variation(harmonics=(0.5, 0.25)))
+    np.testing.assert_allclose(harm.data - harm.nuisance, base.data - base.nuisance, atol=1e-5)
+    spectrum = np.abs(np.fft.rfft(harm.nuisance[:, 4] - base.nuisance[:, 4]))
+    assert spectrum.max() > 0.1 * np.abs(np.fft.rfft(base.nuisance[:, 4])).max()
+    # shapes: a triangle peaks at the box's offset and holds half its sum
+    tri = run(variation=Variation(deviation_shape="triangle"))
+    assert [d["time_s"] for d in tri.defects] == [d["time_s"] for d in base.defects]
+    np.testing.assert_allclose(deviation("triangle", 100).sum() / 100, 0.5, atol=0.01)
+    np.testing.assert_allclose(deviation("half-sine", 1000).mean(), 2 / np.pi, atol=0.01)
+    box = next(d for d in base.defects if d["kind"] == "deviation")
+    i0 = int(round(box["time_s"] * 1000.0))
+    n = max(1, int(round((box["time_s"] + box["duration_s"]) * 1000.0)) - i0)
+    c = CHANNELS.index(box["channel"])
+    diff = (tri.data - base.data)[i0:i0 + n, c]
+    np.testing.assert_allclose(diff, box["offset"] * (deviation("triangle", n) - 1), atol=1e-5)
+    # the noise level ramps from one level to the next: no step between neighbouring samples
+    ramps = run(components=True, variation=Variation(noise_ramps=True)).noise_std[:, 0]
+    steps = base.noise_std[:, 0]
+    assert np.abs(np.diff(steps)).max() > 0.05 > np.abs(np.diff(ramps)).max()
+    # the speed: knots every 5 s over a wider range
+    fast = run(variation=Variation(speed_knot_s=5.0, speed_range=(5.0, 35.0)))
+    assert fast.speed.min() < 15.0 or fast.speed.max() > 30.0
+    assert np.abs(np.diff(fast.speed)).max() * 1000.0 > np.abs(np.diff(base.speed)).max() * 1000.0
+    with pytest.raises(RailwatchError, match="deviation_shape must be one of box"):
+        Variation(deviation_shape="dome")
+    with pytest.raises(RailwatchError, match="speed_knot_s > 0"):
+        Variation(speed_knot_s=0.0)

@@ -11,7 +11,7 @@ from railwatch.atomic import atomic_csv, atomic_path
 from railwatch.errors import RailwatchError
 from railwatch.recordings.layout import layout_toml
 from railwatch.recordings.readers import FORMATS, write_recording
-from railwatch.synthetic.runs import DEFECT_FIELDS, Run, synthesize_run
+from railwatch.synthetic.runs import DEFECT_FIELDS, Run, Variation, synthesize_run
 
 
 def check_run_settings(out: str | os.PathLike[str], minutes: float, every_s: float,
@@ -26,14 +26,14 @@ def check_run_settings(out: str | os.PathLike[str], minutes: float, every_s: flo
 
 
 def write_run(out: str | os.PathLike[str], minutes: float, seed: int = 0, fs: float = 2000.0,
-              every_s: float = 10.0, stage: int = 5,
-              loud_stretches: bool = False) -> tuple[Run, Path, Path]:
-    """Synthesise a run and write it to ``out`` (the extension picks the format), its layout to
-    ``<stem>.layout.toml`` and its true defects to ``<stem>.defects.csv``; returns the run and
-    the paths of the layout and of the defects."""
+              every_s: float = 10.0, stage: int = 5, loud_stretches: bool = False,
+              variation: Variation | None = None) -> tuple[Run, Path, Path]:
+    """Synthesise a run (made differently with ``variation``) and write it to ``out`` (the
+    extension picks the format), its layout to ``<stem>.layout.toml`` and its true defects to
+    ``<stem>.defects.csv``; returns the run and the paths of the layout and of the defects."""
     check_run_settings(out, minutes, every_s, fs)
     run = synthesize_run(minutes * 60, seed=seed, fs=fs, defect_every_s=every_s, stage=stage,
-                         loud_stretches=loud_stretches)
+                         loud_stretches=loud_stretches, variation=variation)
     return (run, *save_run(out, run))
 
 

@@ -32,6 +32,11 @@ defects):
   L = T · 22.5 m of travel (T, ω and β from the group's Stage-8 ranges at 22.5 m/s), so the
   period in time is L / v; width ω · 22.5 / v, height β · v / 22.5.
 
+A :class:`Variation` makes a run differently from the runs the detectors were developed on (the
+generalisation tests of ``docs/nuisance-glr.md``): the speed's knots closer or its range wider,
+a noise level that ramps between its knots instead of stepping, a vibration with harmonics (not
+a sinusoid), local deviations of another shape. ``Variation()`` is the runs as they were.
+
 ``loud_stretches`` adds **long stretches of rough track**: the track is cut into sections of
 200–1500 m (9–67 s at 22.5 m/s); each is rough with probability 0.4 and multiplies the white
 noise of every channel by U[2, 4] over its whole length. A detector that learned one noise level,
@@ -67,6 +72,42 @@ STRETCH_GAIN = (2.0, 4.0)
 #: Columns of the true-defects table (one row per defect).
 DEFECT_FIELDS = ("time_s", "duration_s", "center_s", "position_m", "channel", "group", "kind",
                  "offset")
+
+
+#: Shapes a local deviation may take (:class:`Variation`): over its span u = 0..1, the offset
+#: times 1 (a box), 1 − |2u − 1| (a triangle) or sin(π u) (half a sine).
+SHAPES = ("box", "triangle", "half-sine")
+
+
+@dataclass(frozen=True)
+class Variation:
+    """How a run is made differently (module docstring); the defaults are the runs as made."""
+
+    speed_knot_s: float = 30.0  # the speed is piecewise linear between knots this far apart
+    speed_range: tuple[float, float] = (15.0, 30.0)  # m/s, drawn at every knot
+    noise_ramps: bool = False  # the noise level ramps linearly from knot to knot (not steps)
+    harmonics: tuple[float, ...] = ()  # amplitudes of the 2nd, 3rd, ... harmonics, per unit
+    deviation_shape: str = "box"  # a local deviation's shape over its span (SHAPES)
+
+    def __post_init__(self) -> None:
+        low, high = self.speed_range
+        if not (self.speed_knot_s > 0 and 0 < low <= high):
+            raise RailwatchError(f"a variation needs speed_knot_s > 0 and 0 < low <= high m/s, "
+                                 f"got {self.speed_knot_s} and {self.speed_range}")
+        if self.deviation_shape not in SHAPES:
+            raise RailwatchError(f"deviation_shape must be one of {', '.join(SHAPES)}, got "
+                                 f"{self.deviation_shape!r}")
+
+
+def deviation(shape: str, n: int) -> NDArray[np.float64]:
+    """The ``n`` samples of a unit local deviation of ``shape`` (:data:`SHAPES`), at the
+    samples' centres."""
+    u = (np.arange(n) + 0.5) / n
+    if shape == "triangle":
+        return 1.0 - np.abs(2 * u - 1)
+    if shape == "half-sine":
+        return np.sin(np.pi * u)
+    return np.ones(n)
 
 
 @dataclass
@@ -109,9 +150,12 @@ def synthesize_run(
     stage: int = 5,
     loud_stretches: bool = False,
     components: bool = False,
+    variation: Variation | None = None,
 ) -> Run:
     """A continuous six-channel run with defects at known times; see the module docstring.
-    ``components=True`` keeps the run's nuisance signal and noise std (:class:`Run`)."""
+    ``components=True`` keeps the run's nuisance signal and noise std (:class:`Run`);
+    ``variation`` makes it differently (:class:`Variation`)."""
+    variation = variation or Variation()
     if fs < 100.0:
         raise RailwatchError(f"a run needs fs >= 100 Hz (a spike lasts 0.01 s), got {fs:g}")
     if stage not in RUN_STAGES:
@@ -120,13 +164,14 @@ def synthesize_run(
     # Added components draw from their own streams: the stage-5 run stays as it was.
     odds_rng, burst_rng, impulse_rng, stretch_rng = (
         np.random.default_rng([seed, k]) for k in (6, 7, 8, 9))
-    speed, t = speed_profile(rng, duration_s, fs)
+    speed, t = speed_profile(rng, duration_s, fs, variation.speed_knot_s, variation.speed_range)
     position = np.concatenate([[0.0], np.cumsum(speed[:-1]) / fs])
     scale = speed / MEAN_SPEED
 
     gain = _stretch_gain(stretch_rng, position) if loud_stretches else 1.0
     parts: dict[str, NDArray[np.float32]] | None = {} if components else None
-    data = render(rng, burst_rng, impulse_rng, t, position, scale, gain, stage, fs, parts)
+    data = render(rng, burst_rng, impulse_rng, t, position, scale, gain, stage, fs, parts,
+                  variation)
 
     defects = []
     for at in _defect_times(rng, duration_s, defect_every_s):
@@ -139,7 +184,8 @@ def synthesize_run(
         offset = float(size * rng.choice([-1.0, 1.0]))
         i0 = int(round(at * fs))
         i1 = max(i0 + 1, int(round((at + duration) * fs)))
-        data[i0:i1, c] += offset
+        shape = "box" if spike else variation.deviation_shape
+        data[i0:i1, c] += (offset * deviation(shape, i1 - i0)).astype(data.dtype)
         defects.append({"time_s": at, "duration_s": duration, "center_s": at + duration / 2,
                         "position_m": float(np.interp(at + duration / 2, t, position)),
                         "channel": CHANNELS[c], "group": CHANNEL_GROUPS[c],
@@ -148,25 +194,35 @@ def synthesize_run(
                **(parts or {}))
 
 
-def speed_profile(rng: np.random.Generator, duration_s: float,
-                  fs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def speed_profile(rng: np.random.Generator, duration_s: float, fs: float, knot_s: float = 30.0,
+                  speed_range: tuple[float, float] = (15.0, 30.0)
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The train's speed (m/s) at every sample of ``duration_s`` and the sample times: piecewise
-    linear between knots every 30 s, U[15, 30] m/s."""
+    linear between knots every ``knot_s`` (30 s), drawn from U[``speed_range``] (15-30 m/s)."""
     n = int(round(duration_s * fs))
     t = np.arange(n) / fs
-    knots_t = np.arange(0.0, duration_s + 30.0, 30.0)
-    return np.interp(t, knots_t, rng.uniform(15.0, 30.0, len(knots_t))), t
+    knots_t = np.arange(0.0, duration_s + knot_s, knot_s)
+    return np.interp(t, knots_t, rng.uniform(*speed_range, len(knots_t))), t
 
 
 def render(rng: np.random.Generator, burst_rng: np.random.Generator,
            impulse_rng: np.random.Generator, t: NDArray[np.float64],
            position: NDArray[np.float64], scale: NDArray[np.float64],
            gain: NDArray[np.float64] | float, stage: int, fs: float,
-           parts: dict[str, NDArray[np.float32]] | None = None) -> NDArray[np.float32]:
+           parts: dict[str, NDArray[np.float32]] | None = None,
+           variation: Variation | None = None) -> NDArray[np.float32]:
     """The six channels of a run without defects (n, 6): sinusoids scaled by speed, white noise
     of changing level times the track's ``gain``, and from ``stage`` 7 and 8 the bursts and
     impulses, placed by ``position``, the distance travelled (increasing). ``parts``, if
-    given, receives ``nuisance`` (all but the white noise) and ``noise_std`` (its std), (n, 6)."""
+    given, receives ``nuisance`` (all but the white noise) and ``noise_std`` (its std), (n, 6).
+    ``variation``: the noise's ramps and the vibration's harmonics (:class:`Variation`)."""
+    variation = variation or Variation()
+    # the harmonics' phases draw from a stream of their own: the other draws stay as they were
+    harmonic_rng = None
+    if variation.harmonics:
+        seeds = rng.bit_generator.seed_seq
+        assert isinstance(seeds, np.random.SeedSequence)
+        harmonic_rng = np.random.default_rng(seeds.spawn(1)[0])
     n = len(t)
     travel = _travel(scale, fs)
     data = np.empty((n, len(CHANNELS)), np.float32)
@@ -178,7 +234,10 @@ def render(rng: np.random.Generator, burst_rng: np.random.Generator,
         f, amp, phi = rng.uniform(*g.f), rng.uniform(*g.amp), rng.uniform(0, 2 * np.pi)
         phase = phi + 2 * np.pi * f * travel
         clean = amp * scale * np.sin(phase)
-        level = _noise_levels(rng, n, fs, g.sigma, g.d_sigma)
+        for k, share in enumerate(variation.harmonics, start=2):
+            assert harmonic_rng is not None
+            clean += share * amp * scale * np.sin(k * phase + harmonic_rng.uniform(0, 2 * np.pi))
+        level = _noise_levels(rng, n, fs, g.sigma, g.d_sigma, variation.noise_ramps)
         data[:, c] = clean + gain * (level * rng.standard_normal(n))
         if nuisance is not None and std is not None:
             nuisance[:, c], std[:, c] = clean, gain * level
@@ -251,14 +310,21 @@ def _impulses(rng: np.random.Generator, g: GroupRanges, t: NDArray[np.float64],
 
 
 def _noise_levels(rng: np.random.Generator, n: int, fs: float, sigma: tuple[float, float],
-                  d_sigma: tuple[float, float]) -> NDArray[np.float64]:
-    """Per-sample noise std: a new level σ + b·Δσ every U[0.4, 1.6] s."""
+                  d_sigma: tuple[float, float], ramps: bool = False) -> NDArray[np.float64]:
+    """Per-sample noise std: a new level σ + b·Δσ every U[0.4, 1.6] s; with ``ramps``, the
+    level goes linearly from each one to the next instead of stepping."""
     levels = np.empty(n)
+    starts, values = [], []
     i = 0
     while i < n:
         length = max(1, int(rng.uniform(0.4, 1.6) * fs))
-        levels[i:i + length] = rng.uniform(*sigma) + (rng.random() < 0.5) * rng.uniform(*d_sigma)
+        value = rng.uniform(*sigma) + (rng.random() < 0.5) * rng.uniform(*d_sigma)
+        levels[i:i + length] = value
+        starts.append(i)
+        values.append(value)
         i += length
+    if ramps and len(starts) > 1:
+        return np.interp(np.arange(n), starts, values)
     return levels
 
 
