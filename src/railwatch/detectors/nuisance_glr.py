@@ -8,9 +8,10 @@ channel (vectorised over the N·C series, chunks of windows on up to two threads
 1. **Nuisance**: the harmonic model of :mod:`railwatch.scoring.harmonic`, a sinusoid at the
    window's spectral peak whose frequency changes linearly (``chirp``) and whose amplitude and
    phase drift as quadratics in time, plus an intercept and a trend, fitted by Huber-weighted
-   least squares; where the frequency jumps at one instant (the paper's speed change), a
-   sinusoid of its own on each side of the jump, found as the kink of the oscillation's phase,
-   when that lowers the residual's rms by ``change``.
+   least squares; its 2nd .. (``overtones`` + 1)th harmonics where a likelihood-ratio test
+   keeps them (a periodic vibration that is not a sinusoid); where the frequency jumps at one
+   instant (the paper's speed change), a sinusoid of its own on each side of the jump, found as
+   the kink of the oscillation's phase, when that lowers the residual's rms by ``change``.
 2. **Noise level**: where ``detect`` hands it the recording's noise floor
    (:mod:`railwatch.recordings.floor`: the level measured in the band that the resampling
    throws away), the residual is divided by its running median over ±``floor_span`` samples,
@@ -97,6 +98,7 @@ class NuisanceGLRConfig(DetectorConfig):
     harmonic: bool = True  # fit the harmonic model (step 1); off: the predictor alone
     poly: int = 2  # degree of the harmonic's amplitude polynomials (2: drift and curvature)
     chirp: bool = True  # the harmonic's frequency changes linearly across the window
+    overtones: int = 2  # the fundamental's 2nd .. (1 + this)th harmonics, where a test keeps them
     change: float = 0.1  # a two-sided model where it lowers the residual's rms by this share
     huber_k: float = 1.345  # Huber threshold in robust standard deviations (95 % efficiency)
     irls_iterations: int = 3  # reweighting passes after the first least-squares fit
@@ -163,10 +165,11 @@ class NuisanceGLR(Detector):
     def field_scale(cls, fs: float) -> dict[str, Any]:
         """At field scale (a recording's own rate ``fs``): the matched filter's predictor, energy
         family and one noise scale per window (:meth:`MatchedFilter.field_scale`), a harmonic
-        with no speed jump inside a window (no sinusoid of its own on each side), no bursts and
-        no synchronous level (module docstring, "At field scale")."""
+        with no speed jump inside a window (no sinusoid of its own on each side) and no
+        overtones (the predictor whitens them), no bursts and no synchronous level (module
+        docstring, "At field scale")."""
         return {**MatchedFilter.field_scale(fs), "change": 0.0, "bursts": False,
-                "period_guard": 0.0}
+                "period_guard": 0.0, "overtones": 0}
 
     def _families(self) -> tuple[Family, ...]:
         cfg = self.config
@@ -188,7 +191,7 @@ class NuisanceGLR(Detector):
         if not cfg.harmonic:
             return np.zeros_like(x)
         return harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
-                            cfg.chirp, cfg.change)
+                            cfg.chirp, cfg.change, overtones=cfg.overtones)
 
     def whitened(self, r: NDArray[np.float64], floor: NDArray[np.float64] | None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
