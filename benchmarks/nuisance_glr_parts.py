@@ -23,7 +23,10 @@ loud stretches.
 Run: `python -m benchmarks nuisance_glr_parts` (about 8 minutes on 2 cores, 12 when it makes the
 runs, which it shares with `make bench-recordings-nuisance` in the same `--work`); `--held-out --out
 docs/results/recordings/nuisance-glr-parts-held-out.md` on seed trios 11-19, never looked at
-while nuisance-glr's settings were chosen.
+while nuisance-glr's settings were chosen; `--made-differently --out
+docs/results/recordings/nuisance-glr-made-differently.md` (about 15 minutes): the oracle, the
+matched filter and nuisance-glr at stages 5 and 8 on runs made unlike the development runs
+(:data:`MADE_DIFFERENTLY`), seed trios 21-29.
 """
 
 from __future__ import annotations
