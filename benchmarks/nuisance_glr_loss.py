@@ -84,7 +84,6 @@ def row_scores(det: NuisanceGLR, ws: WindowSet, row: str) -> F64:
     if row == "F":
         return np.asarray(det.score(ws.X).instance, dtype=np.float64)
     assert ws.nuisance is not None and ws.noise_std is not None
-    n, t, c = ws.X.shape
     x, clean = series(ws.X), series(ws.nuisance)
     fitted: dict[str, Callable[[], F64]] = {
         "A": lambda: clean, "B": lambda: clean, "C": lambda: det.nuisance(clean),
@@ -92,6 +91,13 @@ def row_scores(det: NuisanceGLR, ws: WindowSet, row: str) -> F64:
         "E": lambda: det.nuisance(x)}
     r = x - fitted[row]()
     w = r / series(ws.noise_std) if row == "A" else det.whitened(r, None)[0]
+    return scanned(det, w, ws.X.shape)
+
+
+def scanned(det: NuisanceGLR, w: F64, shape: tuple[int, ...]) -> F64:
+    """Instance scores (N,): nuisance-glr's calibrated spike and box scan of the whitened
+    series ``w`` (N·C, T) of windows of ``shape`` (N, T, C), the largest over channels."""
+    n, t, c = shape
     fams = families(det.config.min_box, det.config.max_box)
     counts = scale_counts(det.stats_["null_counts"], fams, det.n_steps_, t)
     norms = [[np.sqrt(L) for L in fam] for fam in fams]
@@ -104,13 +110,9 @@ def blind_scores(det: NuisanceGLR, ws: WindowSet, before: WindowSet, level: str)
     less ``before``'s nuisance, the same seed one stage earlier), divided by the true ``level``
     or whitened by nuisance-glr's steps 2-4 (``level`` = "estimated")."""
     assert before.nuisance is not None and ws.noise_std is not None
-    n, t, c = ws.X.shape
     r = series(ws.X) - series(before.nuisance)
     w = r / series(ws.noise_std) if level == "true" else det.whitened(r, None)[0]
-    fams = families(det.config.min_box, det.config.max_box)
-    counts = scale_counts(det.stats_["null_counts"], fams, det.n_steps_, t)
-    norms = [[np.sqrt(L) for L in fam] for fam in fams]
-    return scan(w.reshape(n, c, t).transpose(0, 2, 1), fams, norms, counts).max(axis=(1, 2))
+    return scanned(det, w, ws.X.shape)
 
 
 def by_kind_and_group(ws: WindowSet, scores: F64) -> dict[str, float]:
