@@ -72,8 +72,8 @@ from railwatch.scoring.glr import (
     Family,
     effective_counts,
     effective_energy_count,
-    energy_score,
     families,
+    raise_to_energy,
     scale_counts,
     scan,
 )
@@ -287,10 +287,8 @@ class MatchedFilter(Detector):
         out = scan(g, fams, norms, counts)
         energy = self._energy()
         if energy:
-            m = scale_counts(self.stats_["energy_count"], (energy,), self.n_steps_, n_steps)[0]
-            if np.isfinite(m):
-                np.maximum(out, energy_score(w.reshape(n, n_channels, n_steps).transpose(0, 2, 1),
-                                             energy, float(m)), out=out)
+            raise_to_energy(out, w.reshape(n, n_channels, n_steps).transpose(0, 2, 1), energy,
+                            self.stats_["energy_count"], self.n_steps_)
         return out
 
     def _fit(self, X: FloatArray, context: dict[str, FloatArray]) -> None:

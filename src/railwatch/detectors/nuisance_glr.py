@@ -77,8 +77,8 @@ from railwatch.scoring.glr import (
     Family,
     effective_counts,
     effective_energy_count,
-    energy_score,
     families,
+    raise_to_energy,
     scale_counts,
     scan,
 )
@@ -233,11 +233,6 @@ class NuisanceGLR(Detector):
         counts = scale_counts(self.stats_["null_counts"], fams, self.n_steps_, n_steps)
         norms = [[np.sqrt(L) for L in fam] for fam in fams]  # a box of L white samples: √L
         out = np.empty((n, n_steps, n_channels))
-        energy_count = None
-        if cfg.energy_boxes:
-            m = scale_counts(self.stats_["energy_count"], (cfg.energy_boxes,), self.n_steps_,
-                             n_steps)[0]
-            energy_count = float(m) if np.isfinite(m) else None
 
         def scored(i: int) -> None:  # windows i .. i + step: fitted, whitened, scanned
             part = slice(i, i + step)
@@ -255,9 +250,9 @@ class NuisanceGLR(Detector):
                 out[part] = scan(g, fams, chunk_norms, counts)
             else:
                 out[part] = scan(w.reshape(ntc).transpose(0, 2, 1), fams, norms, counts)
-            if energy_count is not None:
-                np.maximum(out[part], energy_score(w.reshape(ntc).transpose(0, 2, 1),
-                                                   cfg.energy_boxes, energy_count), out=out[part])
+            if cfg.energy_boxes:
+                raise_to_energy(out[part], w.reshape(ntc).transpose(0, 2, 1), cfg.energy_boxes,
+                                self.stats_["energy_count"], self.n_steps_)
 
         series_at_once = CHUNK_SERIES
         if cfg.order:  # the predictor's design matrices (series, 2 (T - p), p + 1) in cache

@@ -272,6 +272,17 @@ def energy_score(w: FloatArray, lengths: Family, count: float) -> FloatArray:
     return -log10_familywise_p(energy_z(w, lengths), count)
 
 
+def raise_to_energy(out: FloatArray, w: FloatArray, lengths: Family, count: NDArray[np.float64],
+                    fitted_steps: int) -> None:
+    """``out`` (N, T, C) raised in place to the energy family's :func:`energy_score` of the
+    whitened residual ``w`` (N, T, C), its effective count ``count`` (1,) fitted on windows of
+    ``fitted_steps`` and rescaled to ``w``'s (:func:`scale_counts`; nothing where no length
+    fits)."""
+    m = scale_counts(count, (lengths,), fitted_steps, w.shape[1])[0]
+    if np.isfinite(m):
+        np.maximum(out, energy_score(w, lengths, float(m)), out=out)
+
+
 def effective_energy_count(n_steps: int, lengths: Family, n_windows: int, alpha: float,
                            seed: int) -> float:
     """Effective number of independent positions of the energy family (:func:`energy_z`), by
