@@ -22,8 +22,9 @@ preset's seeds (0-2) are not used. A second table splits stage 5 by the anomaly'
 channel group it lies on. A third asks what the stage's own nuisance costs when everything else
 is known: at stage 7 (bursts) and 8 (impulses), the residual of everything but it (the stage
 before's nuisance: the generator's stages nest under one seed), divided by the true level or
-whitened by nuisance-glr's steps 2-4 (its burst model, its synchronous level). Writes
-docs/results/detectors/nuisance-glr-loss.md.
+whitened by nuisance-glr's steps 2-4 (its burst model, its synchronous level), and with the
+impulse train fitted and taken out (`railwatch.scoring.impulses`; nuisance-glr's `impulses`,
+off by default). Writes docs/results/detectors/nuisance-glr-loss.md.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from railwatch.detectors.nuisance_glr import NuisanceGLR
 from railwatch.machine import cpu_name
 from railwatch.report.pages import write_markdown
 from railwatch.scoring.glr import families, scale_counts, scan
+from railwatch.scoring.impulses import fit_train
 from railwatch.synthetic import generate
 from railwatch.windows import WindowSet
 
@@ -50,7 +52,7 @@ from railwatch.windows import WindowSet
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
 NEEDS: tuple[str, ...] = ()
 PAGE = "docs/results/detectors/nuisance-glr-loss.md"
-MINUTES = 2
+MINUTES = 6
 
 TRAIN_SEED, TEST_SEED = 201, 202
 ROWS = {
@@ -108,10 +110,18 @@ def scanned(det: NuisanceGLR, w: F64, shape: tuple[int, ...]) -> F64:
 def blind_scores(det: NuisanceGLR, ws: WindowSet, before: WindowSet, level: str) -> F64:
     """Instance scores (N,) of the residual of everything but the stage's own nuisance (``ws``
     less ``before``'s nuisance, the same seed one stage earlier), divided by the true ``level``
-    or whitened by nuisance-glr's steps 2-4 (``level`` = "estimated")."""
+    (``level`` = "true", or "train": then less the impulse train fitted to it,
+    :func:`railwatch.scoring.impulses.fit_train` with ``det``'s settings) or whitened by
+    nuisance-glr's steps 2-4 (``level`` = "estimated")."""
     assert before.nuisance is not None and ws.noise_std is not None
     r = series(ws.X) - series(before.nuisance)
-    w = r / series(ws.noise_std) if level == "true" else det.whitened(r, None)[0]
+    if level == "estimated":
+        return scanned(det, det.whitened(r, None)[0], ws.X.shape)
+    w = r / series(ws.noise_std)
+    if level == "train":
+        cfg = det.config
+        w = w - fit_train(w, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
+                          cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap).fit
     return scanned(det, w, ws.X.shape)
 
 
@@ -153,7 +163,12 @@ def main() -> None:
             before = generate(stage - 1, args.n, TEST_SEED, components=True)
             blind[stage] = {level: float(roc_auc_score(test.y, blind_scores(det, test, before,
                                                                             level)))
-                            for level in ("true", "estimated")}
+                            for level in ("true", "train", "estimated")}
+            trains = create("nuisance-glr", {"progress": False, "impulses": True}).fit(train.X)
+            assert isinstance(trains, NuisanceGLR)
+            blind[stage]["trains estimated"] = float(roc_auc_score(
+                test.y, blind_scores(trains, test, before, "estimated")))
+            blind[stage]["trains"] = float(roc_auc_score(test.y, trains.score(test.X).instance))
         print(f"stage {stage}: " + ", ".join(f"{r} {table[r][stage]:.3f}" for r in ROWS),
               flush=True)
     lines = [
@@ -194,10 +209,17 @@ def main() -> None:
                   + " | ".join(f"{table['B'][s]:.3f}" for s in at) + " |",
                   "| the stage's own nuisance unknown, true level, nothing to model it | "
                   + " | ".join(f"{blind[s]['true']:.3f}" for s in at) + " |",
+                  "| ... true level, the impulse train fitted and taken out | "
+                  + " | ".join(f"{blind[s]['train']:.3f}" for s in at) + " |",
                   "| ... whitened by nuisance-glr (its level, burst model and synchronous "
                   "level) | " + " | ".join(f"{blind[s]['estimated']:.3f}" for s in at) + " |",
+                  "| ... whitened by nuisance-glr with `impulses=true` (the train fitted and "
+                  "taken out first) | " + " | ".join(f"{blind[s]['trains estimated']:.3f}"
+                                                     for s in at) + " |",
                   "| F. nuisance-glr | " + " | ".join(f"{table['F'][s]:.3f}" for s in at)
-                  + " |"]
+                  + " |",
+                  "| F. nuisance-glr with `impulses=true` | " + " | ".join(
+                      f"{blind[s]['trains']:.3f}" for s in at) + " |"]
     print(write_markdown(args.out, lines))
 
 

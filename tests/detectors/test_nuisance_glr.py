@@ -146,6 +146,30 @@ def test_without_a_floor_the_level_is_the_change_points() -> None:
     assert np.allclose(one, one[:, :1]) and abs(np.median(one) / 0.47 - 1) < 0.1
 
 
+def test_with_impulses_the_train_is_taken_out_and_the_harmonic_fitted_again() -> None:
+    """``impulses``: a sinusoid with a wheel's impulse train (one-sided Gaussians, 6 noise std,
+    every 23.4 samples) and a box: the train found and taken out (the harmonic model fitted
+    again to the series less it), the box left for the scan."""
+    from railwatch.detectors.nuisance_glr import NuisanceGLR
+
+    rng = np.random.default_rng(6)
+    t = np.arange(200)
+    tau = np.mod(t - 2.6, 23.4)
+    train = 6.0 * np.exp(-(tau / 2.0) ** 2) * (tau <= 6.0)
+    x = 3.0 * np.sin(2 * np.pi * 0.012 * t + 0.4) + train + rng.standard_normal((40, 200))
+    x[:, 101:111] -= 5.0  # a box between two impulses
+    det = NuisanceGLR(impulses=True)
+    r = x - det.nuisance(x)
+    _, _, taken = det.whitened(r, None)
+    assert (taken.any(axis=1)).mean() >= 0.9
+    assert np.sqrt(np.mean((taken - train) ** 2)) < 1.0  # of a train up to 6 noise std high
+    w, _ = det.residual(x, None)
+    off, _ = NuisanceGLR().residual(x, None)
+    impulse = np.abs(train) > 3
+    assert np.abs(w[:, impulse]).mean() < 0.7 * np.abs(off[:, impulse]).mean()
+    assert np.median(w[:, 101:111].mean(axis=1)) < -3.0  # the box stays
+
+
 def stage_auc(stage: int) -> float:
     from sklearn.metrics import roc_auc_score
 

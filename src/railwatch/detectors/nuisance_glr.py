@@ -25,6 +25,9 @@ channel (vectorised over the N·C series, chunks of windows on up to two threads
    period of ``min_period``-``max_period`` samples (autocorrelation >= ``period_correlation``),
    the level at each sample rises to the robust power at the same phase of the neighbouring
    periods (over ``period_guard``): an impulse repeats a period later, a defect does not.
+   With ``impulses`` (off: it loses on the benchmark's windows, ``docs/nuisance-glr.md``), the
+   train itself is fitted first (:mod:`railwatch.scoring.impulses`), before the bursts, and
+   taken out; the harmonic model is then fitted again to the series less the train.
 5. **Test**: the oracle's GLR scan for a spike and for boxes of ``min_box``-``max_box``
    samples on that whitened residual, each family calibrated to ``−log10`` of its family-wise
    p-value under N(0, 1) noise (:mod:`railwatch.scoring.glr`).
@@ -83,6 +86,7 @@ from railwatch.scoring.glr import (
     scan,
 )
 from railwatch.scoring.harmonic import harmonic_fit
+from railwatch.scoring.impulses import fit_train
 from railwatch.scoring.periodic import synchronous_level
 from railwatch.scoring.residual import MAD_TO_STD, changepoint_scale
 
@@ -118,6 +122,12 @@ class NuisanceGLRConfig(DetectorConfig):
     burst_oversample: float = 4.0  # atom frequencies per 1 / length (the resolution)
     burst_max_length: int = 20  # the longest burst, samples (0.2 s at 100 Hz, as a defect's)
     burst_count: int = 1  # bursts taken out per window and channel, at most
+    impulses: bool = False  # fit the wheel's impulse train and take it out (off: it loses; doc)
+    impulse_correlation: float = 0.3  # ... where the residual's autocorrelation reaches this
+    min_width: float = 0.7  # ... impulses this many samples wide at least (one-sided Gaussian
+    max_width: float = 11.0  # ... ω; spec: 0.01-0.1 s at 100 Hz) and at most
+    impulse_cap: float = 3.0  # ... each at most this many times the train's median amplitude
+    impulse_minimum: float = 1.0  # ... where it explains this much per impulse (noise variances)
     period_guard: float = 1.25  # impulses: level >= the same phase's, over this (0: off)
     period_correlation: float = 0.2  # ... where the residual's autocorrelation reaches this
     min_period: int = 10  # the impulses' period, samples (0.1-0.5 s at 100 Hz: a wheel
@@ -169,7 +179,7 @@ class NuisanceGLR(Detector):
         overtones (the predictor whitens them), no bursts and no synchronous level (module
         docstring, "At field scale")."""
         return {**MatchedFilter.field_scale(fs), "change": 0.0, "bursts": False,
-                "period_guard": 0.0, "overtones": 0}
+                "impulses": False, "period_guard": 0.0, "overtones": 0}
 
     def _families(self) -> tuple[Family, ...]:
         cfg = self.config
@@ -194,17 +204,29 @@ class NuisanceGLR(Detector):
                             cfg.chirp, cfg.change, overtones=cfg.overtones)
 
     def whitened(self, r: NDArray[np.float64], floor: NDArray[np.float64] | None
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64]]:
         """Steps 2-4 on the residual ``r`` (B, T) of every series (a copy is changed): with
         ``order``, the predictor's prediction error and its error filter (B, order + 1) that the
-        tests are matched to (else None); then divided by the noise level, with the bursts taken
-        out and the level raised where the same phase repeats. ``floor``: (B, T) or None."""
+        tests are matched to (else None); then divided by the noise level, with the bursts and
+        the impulse train taken out and the level raised where the same phase repeats. Returns
+        the whitened residual, the error filter and the impulse train taken out (B, T), in
+        ``r``'s units. ``floor``: (B, T) or None."""
         cfg = self.config
         r, c = np.array(r, dtype=np.float64), None
         if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
             coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
             r, c = prediction_error(r, coef), error_filter(coef)
         level = noise_level(r, floor, cfg.floor_span, cfg.change_point)
+        impulses = np.zeros_like(r)
+        if cfg.impulses:  # the wheel's impulse train, fitted and taken out
+            train = fit_train(r / level, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
+                              cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap)
+            k = train.kept
+            if k.any():
+                impulses[k] = train.fit[k] * level[k]
+                r[k] -= impulses[k]  # the train takes no part in the level either
+                level[k] = noise_level(r[k], None if floor is None else floor[k],
+                                       cfg.floor_span, cfg.change_point)
         atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
         for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
             burst = best_burst(r / level, atom_lengths, cfg.burst_oversample, cfg.burst_margin,
@@ -218,7 +240,23 @@ class NuisanceGLR(Detector):
         if cfg.period_guard > 0:  # the level rises where the same phase rises every period
             level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
                                               cfg.period_guard, cfg.period_correlation)
-        return r / level, c
+        return r / level, c, impulses
+
+    def residual(self, x: NDArray[np.float64], floor: NDArray[np.float64] | None
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """Steps 1-4 on every series ``x`` (B, T): the whitened residual and the error filter
+        (:meth:`whitened`). Where an impulse train is taken out, the harmonic model is fitted
+        again to the series less the train (a train pulls the harmonic's frequency and
+        amplitudes, and the fit leaves part of every impulse), and the residual whitened
+        again."""
+        w, c, impulses = self.whitened(x - self.nuisance(x), floor)
+        k = np.flatnonzero(impulses.any(axis=1))
+        if len(k) and self.config.harmonic:
+            again = x[k] - self.nuisance(x[k] - impulses[k])
+            w[k], ck, _ = self.whitened(again, None if floor is None else floor[k])
+            if c is not None and ck is not None:
+                c[k] = ck
+        return w, c
 
     def raw_scores(self, X: FloatArray, floor: FloatArray | None = None) -> NDArray[np.floating]:
         """Unstandardised channel scores (N, T, C): calibrated −log10 family-wise p; ``floor``
@@ -241,7 +279,7 @@ class NuisanceGLR(Detector):
                 return a[part].transpose(0, 2, 1).reshape(-1, n_steps).astype(np.float64)
 
             x = series(X)
-            w, c = self.whitened(x - self.nuisance(x), None if floor is None else series(floor))
+            w, c = self.residual(x, None if floor is None else series(floor))
             ntc = (-1, n_channels, n_steps)
             if c is not None:  # the predictor's shapes (order > 0)
                 g = filter_correlate(w, c).reshape(ntc).transpose(0, 2, 1)
