@@ -127,7 +127,7 @@ class NuisanceGLRConfig(DetectorConfig):
     min_width: float = 0.7  # ... impulses this many samples wide at least (one-sided Gaussian
     max_width: float = 11.0  # ... ω; spec: 0.01-0.1 s at 100 Hz) and at most
     impulse_cap: float = 3.0  # ... each at most this many times the train's median amplitude
-    impulse_minimum: float = 1.0  # ... where it explains this much per impulse (noise variances)
+    impulse_minimum: float = 1.0  # ... where it explains this much per period (noise variances)
     period_guard: float = 1.25  # impulses: level >= the same phase's, over this (0: off)
     period_correlation: float = 0.2  # ... where the residual's autocorrelation reaches this
     min_period: int = 10  # the impulses' period, samples (0.1-0.5 s at 100 Hz: a wheel
