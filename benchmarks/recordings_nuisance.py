@@ -65,7 +65,7 @@ def oracle_row(work: Path, stage: int, loud: bool, seed: int,  # type: ignore[ty
     run made differently (``name`` tells its files apart)."""
     run = synthesize_run(RUN_MINUTES * 60, seed=seed, fs=FS, stage=stage, loud_stretches=loud,
                          components=True, variation=variation)
-    truth = work / f"oracle{name}-stage{stage}{'-loud' if loud else ''}-seed{seed}.defects.csv"
+    truth = work / f"oracle-{name}stage{stage}{'-loud' if loud else ''}-seed{seed}.defects.csv"
     atomic_csv(truth, DEFECT_FIELDS, run.defects)
     low = [e.to_dict() for e in oracle_events(run, threshold=1.0, noise=noise)]
     events = [e for e in low if e["score"] >= threshold]

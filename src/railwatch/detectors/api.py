@@ -38,6 +38,7 @@ from railwatch.scoring.reduce import (
     reduce_instance_max,
     reduce_point_max,
 )
+from railwatch.scoring.residual import MAD_TO_STD
 from railwatch.scoring.thresholds import ContaminationQuantile, ThresholdRule
 
 if TYPE_CHECKING:
@@ -470,7 +471,7 @@ def peak_statistics(raw: NDArray[Any]) -> dict[str, NDArray[np.float32]]:
     scores would inflate a mean and std."""
     peak = raw.max(axis=1)  # (N, C): each window's largest score per channel
     median = np.median(peak, axis=0)
-    mad = 1.4826 * np.median(np.abs(peak - median), axis=0)
+    mad = MAD_TO_STD * np.median(np.abs(peak - median), axis=0)
     return {"score_median": median.astype(np.float32),
             "score_scale": np.where(mad > 1e-8, mad, 1.0).astype(np.float32)}
 

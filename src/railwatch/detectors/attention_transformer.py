@@ -68,6 +68,7 @@ from railwatch.detectors.api import GLR_SCORING, DetectorConfig, FloatArray, Sco
 from railwatch.detectors.training import TorchDetector
 from railwatch.errors import RailwatchError
 from railwatch.scoring.reduce import reduce_instance_max, reduce_point_max
+from railwatch.scoring.residual import MAD_TO_STD
 
 SCORING_MODES = ("attention", "reconstruction", "combined", GLR_SCORING)
 INPUT_SCALES = ("window", "training")
@@ -284,7 +285,7 @@ def robust_location_scale(values: NDArray[Any], axis: tuple[int, ...]) -> tuple[
         NDArray[Any], NDArray[Any]]:
     """Median and 1.4826 · MAD over ``axis`` (a std estimate that ignores the 10 % anomalies)."""
     med = np.median(values, axis=axis, keepdims=True)
-    mad = 1.4826 * np.median(np.abs(values - med), axis=axis, keepdims=True)
+    mad = MAD_TO_STD * np.median(np.abs(values - med), axis=axis, keepdims=True)
     return med, np.maximum(mad, 1e-6)
 
 

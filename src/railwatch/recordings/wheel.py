@@ -114,7 +114,7 @@ def cepstral_peaks(chunks: Iterable[Chunk], fs: float, n_channels: int,
         values = total[c, inside]
         k = int(np.argmax(values))
         med = np.median(values)
-        spread = 1.4826 * np.median(np.abs(values - med))
+        spread = 1.4826 * np.median(np.abs(values - med))  # MAD_TO_STD: scoring sits above
         out.append((float(q[inside][k]), float((values[k] - med) / spread) if spread > 0
                     else 0.0))
     return out
