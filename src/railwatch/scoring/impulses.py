@@ -14,7 +14,7 @@ and a decay) at onsets ``φ + k P``, with an amplitude ``a_k >= 0`` of its own p
 strikes harder or softer as the load changes, the last period of a window may hold no impulse,
 and a small error in ``φ`` or ``P`` would otherwise leave a spike's worth at every impulse. The
 amplitudes are bounded by ``cap`` times the train's median amplitude, so that a defect that falls
-on an impulse is not explained by it.
+on an impulse is not wholly explained by it (a box's share that is: ``tests/scoring``).
 
 The fit, vectorised over the series:
 
@@ -25,21 +25,22 @@ The fit, vectorised over the series:
    first samples after the onsets (an impulse's onset is its largest jump, whatever its width);
 3. the width on a geometric grid ``min_width`` .. ``max_width`` (steps of √2), then ``φ``, ``P``
    and the width refined one at a time on finer grids, each candidate scored by the energy (the
-   drop of the residual's sum of squares, in noise variances) that the impulses explain one by
-   one;
+   drop of the residual's sum of squares, in noise variances) that the train explains with one
+   common amplitude (overlapping impulses add);
 4. the impulses one at a time (overlapping impulses share samples), each with its amplitude
-   (``>= 0``, capped) and a shift of its onset within ±1 sample, for a few sweeps: a narrow
-   impulse one sample late leaves a spike of its height, and a train whose period drifts (a
-   wheel that speeds up) moves the later onsets.
+   (``>= 0``, capped from the second sweep on) and a shift of its onset within ±1 sample, for
+   :data:`SWEEPS` sweeps: a narrow impulse one sample late leaves a spike of its height, and a
+   train whose period drifts (a wheel that speeds up) moves the later onsets.
 
 The train is taken out where it explains more than ``minimum`` noise variances per period of the
 window (the search on pure noise finds about 1.4 per period, median, and 2.5 at the 90th
 percentile).
 
-What it recovers and what it costs (``docs/nuisance-glr.md``): with the harmonic nuisance known,
-taking the fitted train out of the stage-8 residual lifts the spike and box scan from 0.61 to
-0.94 instance ROC-AUC (0.96 with the true train taken out); inside nuisance-glr, where the
-harmonic model is fitted to the series with the train in it, it loses.
+What it recovers and what it costs (``docs/notes/2026-12-07-an-impulse-train-model.md``): with
+the harmonic nuisance known, taking the fitted train out of the stage-8 residual lifts the spike
+and box scan from 0.587 to 0.883 instance ROC-AUC at the true level (the loss page's third
+table); inside nuisance-glr, where the harmonic model is fitted to the series with the train in
+it, it loses.
 
 Everything is in samples: a wheel revolution at the benchmark's scale is 10-50 samples at
 100 Hz and a flat's impulse 1-10 samples wide. On a recording kept at 2 kHz a revolution lasts
@@ -59,9 +60,9 @@ F64 = NDArray[np.float64]
 
 #: An impulse's support, in widths: g(u) = exp(−u²) for 0 <= u <= SUPPORT.
 SUPPORT = 3.0
-#: Series fitted at once in the grid searches (bounds their (series, grid, K, L) arrays).
+#: Series fitted at once in the grid searches (bounds their (series, grid, T) arrays).
 CHUNK = 64
-#: Sweeps of the amplitudes' coordinate descent.
+#: Sweeps of the impulse-by-impulse fit (step 4).
 SWEEPS = 6
 
 
@@ -176,15 +177,15 @@ def coarse(w: F64, per: F64, reach: float = 1.0, step: float = 0.25, period_step
 
 def refine(w: F64, onset: F64, per: F64, widths: F64) -> tuple[F64, F64, F64, F64]:
     """Step 3 of the module docstring from a coarse onset and period (B,): the width from the
-    grid ``widths``; then, twice, on finer grids the second time, the onset of the window's
+    grid ``widths``; then three times, on grids finer each time, the onset of the window's
     middle impulse, the period about it (the middle onset and the period are nearly
     independent, where the first onset and the period are not) and the width. Returns onset,
     period, width and the energy explained (B,)."""
     col = np.newaxis
     onset, per, width, e = best_of(w, onset[:, col], per[:, col], widths[col, :])
     mid = np.floor(0.5 * w.shape[1] / per)[:, col]  # the middle impulse
+    offsets = np.linspace(-1.0, 1.0, 11)
     for shift, stretch, scale in ((0.5, 0.15, 0.25), (0.2, 0.06, 0.125), (0.08, 0.024, 0.0625)):
-        offsets = np.linspace(-1.0, 1.0, 11)
         onset, per, width, e = best_of(w, onset[:, col] + shift * offsets, per[:, col],
                                        width[:, col])
         d = stretch * offsets
