@@ -44,7 +44,6 @@ from railwatch.detectors.nuisance_glr import NuisanceGLR
 from railwatch.machine import cpu_name
 from railwatch.report.pages import write_markdown
 from railwatch.scoring.glr import families, scale_counts, scan
-from railwatch.scoring.impulses import fit_train
 from railwatch.synthetic import generate
 from railwatch.windows import WindowSet
 
@@ -111,7 +110,7 @@ def blind_scores(det: NuisanceGLR, ws: WindowSet, before: WindowSet, level: str)
     """Instance scores (N,) of the residual of everything but the stage's own nuisance (``ws``
     less ``before``'s nuisance, the same seed one stage earlier), divided by the true ``level``
     (``level`` = "true", or "train": then less the impulse train fitted to it,
-    :func:`railwatch.scoring.impulses.fit_train` with ``det``'s settings) or whitened by
+    :meth:`NuisanceGLR.impulse_train`) or whitened by
     nuisance-glr's steps 2-4 (``level`` = "estimated")."""
     assert before.nuisance is not None and ws.noise_std is not None
     r = series(ws.X) - series(before.nuisance)
@@ -119,9 +118,7 @@ def blind_scores(det: NuisanceGLR, ws: WindowSet, before: WindowSet, level: str)
         return scanned(det, det.whitened(r, None)[0], ws.X.shape)
     w = r / series(ws.noise_std)
     if level == "train":
-        cfg = det.config
-        w = w - fit_train(w, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
-                          cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap).fit
+        w = w - det.impulse_train(w).fit
     return scanned(det, w, ws.X.shape)
 
 

@@ -86,7 +86,7 @@ from railwatch.scoring.glr import (
     scan,
 )
 from railwatch.scoring.harmonic import harmonic_fit
-from railwatch.scoring.impulses import fit_train
+from railwatch.scoring.impulses import Train, fit_train
 from railwatch.scoring.periodic import synchronous_level
 from railwatch.scoring.residual import MAD_TO_STD, changepoint_scale
 
@@ -203,6 +203,13 @@ class NuisanceGLR(Detector):
         return harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
                             cfg.chirp, cfg.change, overtones=cfg.overtones)
 
+    def impulse_train(self, w: NDArray[np.float64]) -> Train:
+        """The wheel's impulse train in the whitened residual ``w`` (B, T), with this detector's
+        settings (:func:`railwatch.scoring.impulses.fit_train`)."""
+        cfg = self.config
+        return fit_train(w, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
+                         cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap)
+
     def whitened(self, r: NDArray[np.float64], floor: NDArray[np.float64] | None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64]]:
         """Steps 2-4 on the residual ``r`` (B, T) of every series (a copy is changed): with
@@ -217,16 +224,21 @@ class NuisanceGLR(Detector):
             coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
             r, c = prediction_error(r, coef), error_filter(coef)
         level = noise_level(r, floor, cfg.floor_span, cfg.change_point)
+
+        def take_out(k: NDArray[np.bool_], part: NDArray[np.float64]) -> None:
+            """``part`` (in ``r``'s units) out of the series ``k``: it takes no part in their
+            level either."""
+            r[k] -= part
+            level[k] = noise_level(r[k], None if floor is None else floor[k], cfg.floor_span,
+                                   cfg.change_point)
+
         impulses = np.zeros_like(r)
         if cfg.impulses:  # the wheel's impulse train, fitted and taken out
-            train = fit_train(r / level, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
-                              cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap)
+            train = self.impulse_train(r / level)
             k = train.kept
             if k.any():
                 impulses[k] = train.fit[k] * level[k]
-                r[k] -= impulses[k]  # the train takes no part in the level either
-                level[k] = noise_level(r[k], None if floor is None else floor[k],
-                                       cfg.floor_span, cfg.change_point)
+                take_out(k, impulses[k])
         atom_lengths = tuple(range(cfg.min_box, max(cfg.burst_max_length, cfg.min_box) + 1))
         for _ in range(cfg.bursts * cfg.burst_count):  # the strongest first
             burst = best_burst(r / level, atom_lengths, cfg.burst_oversample, cfg.burst_margin,
@@ -234,9 +246,7 @@ class NuisanceGLR(Detector):
             k = burst.kept
             if not k.any():
                 break
-            r[k] -= burst.fit[k] * level[k]  # a burst takes no part in the level either
-            level[k] = noise_level(r[k], None if floor is None else floor[k], cfg.floor_span,
-                                   cfg.change_point)
+            take_out(k, burst.fit[k] * level[k])
         if cfg.period_guard > 0:  # the level rises where the same phase rises every period
             level = level * synchronous_level(r / level, cfg.min_period, cfg.max_period,
                                               cfg.period_guard, cfg.period_correlation)
@@ -250,8 +260,10 @@ class NuisanceGLR(Detector):
         amplitudes, and the fit leaves part of every impulse), and the residual whitened
         again."""
         w, c, impulses = self.whitened(x - self.nuisance(x), floor)
+        if not (self.config.impulses and self.config.harmonic):
+            return w, c
         k = np.flatnonzero(impulses.any(axis=1))
-        if len(k) and self.config.harmonic:
+        if len(k):
             again = x[k] - self.nuisance(x[k] - impulses[k])
             w[k], ck, _ = self.whitened(again, None if floor is None else floor[k])
             if c is not None and ck is not None:
