@@ -2,18 +2,20 @@
 oracle: the ablation table of `docs/nuisance-glr.md`.
 
 On the runs of `benchmarks/recordings_nuisance.py` (10-minute runs with loud stretches; train on
-two, detect on the third, seed trios 1/2/3, 4/5/6, 7/8/9) of stages 5, 6, 7 and 8, four
+two, detect on the third, seed trios 1/2/3, 4/5/6, 7/8/9) of stages 5, 6, 7 and 8, six
 detectors are trained and streamed through `detect`'s pipeline in-process:
 
 1. the matched filter (a robust linear predictor whitens the vibration; its noise level has
    one change point per window);
 2. nuisance-glr's harmonic model alone, with a noise level that changes at most once per
    window (trained without the floor, as on windows that were never resampled; no burst
-   model, no synchronous level);
+   model, no synchronous level, no edge guard);
 3. + the recording's noise floor;
 4. + the burst model;
-5. + the impulses' synchronous level: nuisance-glr as it is;
-6. the oracle (`railwatch.detection.oracle`): the run's clean signal and noise level known.
+5. + the impulses' synchronous level;
+6. + each window's first and last 20 steps left to the windows that overlap them in the stream
+   (``edge_guard``): nuisance-glr as it is;
+7. the oracle (`railwatch.detection.oracle`): the run's clean signal and noise level known.
 
 Each figure is the bound: defects found at <= 0.2 false events per minute by the best threshold
 chosen on the test run. Stage 6 draws the defect's channel by its kind's odds; 7 adds HF bursts;
@@ -60,15 +62,16 @@ STAGES = (5, 6, 7, 8)
 #: Seed trios never looked at while nuisance-glr's settings were chosen (on TRIOS' runs):
 #: `--held-out` measures on them.
 HELD_OUT = ((11, 12, 13), (14, 15, 16), (17, 18, 19))
-#: nuisance-glr without its burst model and synchronous level
-BARE = {"bursts": False, "period_guard": 0.0}
+#: nuisance-glr without its burst model, synchronous level and edge guard
+BARE = {"bursts": False, "period_guard": 0.0, "edge_guard": 0}
 #: name -> (registry detector, trained with the noise floor, settings)
 VARIANTS: dict[str, tuple[str, bool, dict[str, object]]] = {
     "matched filter": ("matched-filter", False, {}),
     "harmonic model, level with one change per window": ("nuisance-glr", False, BARE),
     "+ noise floor": ("nuisance-glr", True, BARE),
-    "+ burst model": ("nuisance-glr", True, {"period_guard": 0.0}),
-    "+ impulses' synchronous level (nuisance-glr)": ("nuisance-glr", True, {}),
+    "+ burst model": ("nuisance-glr", True, {"period_guard": 0.0, "edge_guard": 0}),
+    "+ impulses' synchronous level": ("nuisance-glr", True, {"edge_guard": 0}),
+    "+ windows' edges left to their neighbours (nuisance-glr)": ("nuisance-glr", True, {}),
 }
 #: `--made-differently`: runs made unlike the development runs (railwatch.synthetic.runs.
 #: Variation), on seed trios never used before, at stages 5 and 8; "" is the runs as developed.

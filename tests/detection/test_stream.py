@@ -19,17 +19,22 @@ from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, frame, resample
 
 
-@given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 2**31))
-def test_merge_max_equals_a_loop(n_windows: int, width: int, seed: int) -> None:
+@given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 4), st.integers(0, 2**31))
+def test_merge_max_equals_a_loop(n_windows: int, width: int, guard: int, seed: int) -> None:
+    """Each window's steps merge by their maximum, but for its first and last ``guard`` ones;
+    a window at the first sample keeps its first steps, one at the last its last ones."""
     rng = np.random.default_rng(seed)
     starts = np.sort(rng.integers(0, 40, n_windows))
     values = rng.normal(size=(n_windows, width, 2))
     acc = np.full((40 + width, 2), -np.inf)
-    merge_max(acc, values, starts, 0)
+    last = int(starts[-1]) + width
+    merge_max(acc, values, starts, 0, guard, first=0, last=last)
     brute = np.full((40 + width, 2), -np.inf)
     for s, v in zip(starts, values, strict=True):
         for j in range(width):
-            brute[s + j] = np.maximum(brute[s + j], v[j])
+            kept = (s == 0 or j >= guard) and (s + width == last or j < width - guard)
+            if kept:
+                brute[s + j] = np.maximum(brute[s + j], v[j])
     np.testing.assert_array_equal(acc, brute)
 
 
@@ -116,10 +121,14 @@ def tiny() -> tuple[object, Layout, Preparation, np.ndarray]:
     return det, layout, prep, raw
 
 
-@pytest.mark.parametrize(("fs", "up", "down"), [(200.0, 1, 2), (240.0, 5, 12)])
+@pytest.mark.parametrize(("fs", "up", "down", "guard"),
+                         [(200.0, 1, 2, 0), (240.0, 5, 12, 0), (200.0, 1, 2, 10)])
 def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: ignore[no-untyped-def]
-                                            down: int) -> None:
+                                            down: int, guard: int, monkeypatch) -> None:
+    """Block by block as in one batch; with a detector's ``edge_guard``, each window's first and
+    last steps left to the windows that overlap them, and still every sample scored."""
     det, layout, prep, _ = tiny
+    monkeypatch.setattr(type(det), "edge_guard", guard)
     raw = recording(fs)  # 240 Hz: a rational resampling factor (5 / 12)
     layout = Layout(fs=fs, channels=layout.channels, groups=layout.groups)
     rng = np.random.default_rng(3)
@@ -144,7 +153,9 @@ def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: i
     brute = np.full(len(signal), -np.inf)
     for s, p in zip(starts, scores, strict=True):
         for j in range(50):
-            brute[s + j] = max(brute[s + j], p[j])
+            if (s == 0 or j >= guard) and (s + 50 == len(signal) or j < 50 - guard):
+                brute[s + j] = max(brute[s + j], p[j])
+    assert np.isfinite(brute).all()
     np.testing.assert_allclose(got[:, 0], np.arange(len(signal)) / 100.0)
     np.testing.assert_allclose(got[:, 1], brute, rtol=1e-5, atol=1e-5)
     # The central profile: each sample's channel scores from the window it is most central in.
@@ -207,7 +218,9 @@ def test_the_noise_floor_travels_with_the_windows() -> None:
         i += n
     stream.close()
     point = det.score(windows, {NOISE_FLOOR: floors}).point
-    brute = np.full(len(signal), -np.inf)
+    brute, g = np.full(len(signal), -np.inf), det.edge_guard  # the detector's guard: 20 steps
+    assert g == 20
     for s, p in zip(starts, point, strict=True):
-        brute[s:s + 100] = np.maximum(brute[s:s + 100], p)
+        lo, hi = (0 if s == 0 else g), (100 if s + 100 == len(signal) else 100 - g)
+        brute[s + lo:s + hi] = np.maximum(brute[s + lo:s + hi], p[lo:hi])
     np.testing.assert_allclose(np.concatenate(traces), brute, rtol=1e-4, atol=1e-4)

@@ -5,9 +5,14 @@
 samples every ``hop``), merges the windows' per-step scores into one score per sample (the maximum
 over the windows that cover it, so a sample's score exceeds the instance threshold exactly when
 some window containing it would be flagged), and turns runs of samples above the detector's fitted
-threshold into :class:`Event` objects. ``railwatch detect`` is this class fed one file block by
-block, so batch and streaming detection give the same events by construction (a test feeds random
-block sizes; the per-sample scores agree to float rounding, as windows may be batched differently).
+threshold into :class:`Event` objects. A detector whose scores are not to be trusted at a window's
+edges says how many steps (its ``edge_guard``; nuisance-glr's: a burst cut by the edge looks
+like a defect there): the merge leaves each window's first and last steps to the windows that
+hold them further in, as far as the hop lets every sample keep one (the recording's first and
+last samples keep the only window they have). ``railwatch detect`` is this class fed one file
+block by block, so batch and streaming detection give the same events by construction (a test
+feeds random block sizes; the per-sample scores agree to float rounding, as windows may be
+batched differently).
 
 Latency: a sample's score is final once no later window can cover it, i.e. one window (plus up to
 one hop) after it arrives; an event is emitted when ``merge_gap_s`` of quiet samples have followed
@@ -50,8 +55,12 @@ class Event:
         return asdict(self)
 
 
-def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int) -> None:
-    """In place: ``acc[s − offset + j] = max(acc[...], values[w, j])`` for window w at start s.
+def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int,
+              guard: int = 0, first: int = 0, last: int | None = None) -> None:
+    """In place: ``acc[s − offset + j] = max(acc[...], values[w, j])`` for window w at start s,
+    leaving out each window's first and last ``guard`` steps (a window that begins at sample
+    ``first``, the recording's first, keeps its first steps; one that ends at sample ``last``,
+    the recording's last, keeps its last ones).
 
     ``acc`` holds per-sample scores (n, ...) from sample ``offset``; ``values`` (K, T, ...) the
     windows' per-step scores.
@@ -63,8 +72,11 @@ def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], off
     """
     n_steps = values.shape[1]
     for w, start in enumerate(np.asarray(starts).tolist()):  # K slices: no scatter needed
+        lo = 0 if start == first else guard
+        hi = n_steps if start + n_steps == last else n_steps - guard
         s = start - offset
-        np.maximum(acc[s:s + n_steps], values[w], out=acc[s:s + n_steps])
+        if hi > lo:
+            np.maximum(acc[s + lo:s + hi], values[w, lo:hi], out=acc[s + lo:s + hi])
 
 
 def assign_centres(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int,
@@ -186,6 +198,10 @@ class StreamingDetector:
             raise RailwatchError(f"a hop of {preparation.detect_hop_s:g} s is longer than the "
                                  f"{preparation.window_s:g}-s window: samples would go unscored")
         self.threshold = float(detector.threshold_ if threshold is None else threshold)
+        #: Steps at each end of a window whose scores the merge leaves to the overlapping
+        #: windows (the detector's ``edge_guard``, at most what the hop leaves covered).
+        self.guard = max(0, min(detector.edge_guard,
+                                (self.window - self.hop) // 2))
         self.tracker = EventTracker(self.threshold, max(1, round(merge_gap_s * self.fs)),
                                     layout.channels, layout.groups)
         self.on_samples, self.on_centres = on_samples, on_centres
@@ -296,8 +312,11 @@ class StreamingDetector:
             context = None if self.meter is None else \
                 {NOISE_FLOOR: gather_windows(self.floor, at, self.window)}
             scores = self.detector.score(windows, context)
-            merge_max(self.point, scores.point, np.asarray(starts), self.final)
-            merge_max(self.channel, scores.channel, np.asarray(starts), self.final)
+            last = n_out if end else None
+            merge_max(self.point, scores.point, np.asarray(starts), self.final, self.guard, 0,
+                      last)
+            merge_max(self.channel, scores.channel, np.asarray(starts), self.final, self.guard,
+                      0, last)
             self.owned = assign_centres(self.centre, scores.channel, np.asarray(starts),
                                         self.final, self.owned, self.hop,
                                         n_out if end else None)

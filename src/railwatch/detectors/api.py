@@ -204,6 +204,13 @@ class Detector(ABC):
     scoring_modes: ClassVar[tuple[str, ...]] = ()
     registry_name: str = ""  # set by the registry (variants of one class differ here)
 
+    @property
+    def edge_guard(self) -> int:
+        """Steps at each end of a window whose scores a stream of overlapping windows leaves to
+        the windows that hold them further in (:class:`railwatch.detection.stream.
+        StreamingDetector`): 0, every step counts."""
+        return 0
+
     @classmethod
     def field_scale(cls, fs: float) -> dict[str, Any]:
         """Config defaults for recordings prepared at field scale at ``fs`` Hz (``railwatch

@@ -40,8 +40,15 @@ The doc page gives what each part recovers, and what is still lost at stages 7 a
 vehicle's response to the rail is broadband and coloured, not one sinusoid, and a squat is
 itself a short ringing: a robust linear predictor (``order``, the matched filter's) whitens what
 the harmonic model leaves and the spike and box tests are matched to its shapes; the energy
-family, one noise scale per window, no speed jump inside a window, no bursts and no synchronous
-level (``docs/nuisance-glr.md``, "At field scale").
+family, one noise scale per window, no speed jump inside a window, no bursts, no synchronous
+level and no edge guard (``docs/nuisance-glr.md``, "At field scale").
+
+**Windows in a stream** (``detect``: 2-s windows every 0.5 s, each sample's score the maximum
+over the windows that hold it): a burst that starts in a window's last samples is, in that
+window, a spike or a short box that no oscillation atom can be told apart from, and it wins the
+maximum though the windows that hold it whole take it out. ``edge_guard`` leaves each window's
+first and last steps to the windows that overlap them (:attr:`Detector.edge_guard`; the
+recording's first and last samples keep the only window they have).
 """
 
 from __future__ import annotations
@@ -132,6 +139,8 @@ class NuisanceGLRConfig(DetectorConfig):
     period_correlation: float = 0.2  # ... where the residual's autocorrelation reaches this
     min_period: int = 10  # the impulses' period, samples (0.1-0.5 s at 100 Hz: a wheel
     max_period: int = 50  # revolution at the benchmark's scale)
+    edge_guard: int = 20  # detect: each window's first and last steps left to the windows
+    # that overlap them (a burst or box cut by the window's edge is a shorter one; field scale 0)
     null_windows: int = 10000  # Monte Carlo N(0, 1) windows calibrating each family
     null_alpha: float = 0.05  # tail level at which each family's calibration is exact
 
@@ -176,10 +185,15 @@ class NuisanceGLR(Detector):
         """At field scale (a recording's own rate ``fs``): the matched filter's predictor, energy
         family and one noise scale per window (:meth:`MatchedFilter.field_scale`), a harmonic
         with no speed jump inside a window (no sinusoid of its own on each side) and no
-        overtones (the predictor whitens them), no bursts and no synchronous level (module
-        docstring, "At field scale")."""
+        overtones (the predictor whitens them), no bursts, no synchronous level and no edge
+        guard (module docstring, "At field scale")."""
         return {**MatchedFilter.field_scale(fs), "change": 0.0, "bursts": False,
-                "impulses": False, "period_guard": 0.0, "overtones": 0}
+                "impulses": False, "period_guard": 0.0, "overtones": 0, "edge_guard": 0}
+
+    @property
+    def edge_guard(self) -> int:
+        """The ``edge_guard`` setting (module docstring, "Windows in a stream")."""
+        return self.config.edge_guard
 
     def _families(self) -> tuple[Family, ...]:
         cfg = self.config
