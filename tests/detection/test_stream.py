@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -19,6 +21,20 @@ from railwatch.recordings.layout import Layout
 from railwatch.recordings.prepare import Preparation, frame, resample
 
 
+def merge_by_loop(n: int, starts: Sequence[int], values: np.ndarray, guard: int = 0,
+                  last: int | None = None) -> np.ndarray:
+    """Per sample of ``n``, the maximum of the windows' steps (``values`` (K, T, ...) at
+    ``starts``) but for each window's first and last ``guard`` ones; a window at sample 0
+    keeps its first steps, one that ends at ``last`` its last ones."""
+    width = values.shape[1]
+    out = np.full((n, *values.shape[2:]), -np.inf)
+    for s, v in zip(starts, values, strict=True):
+        for j in range(width):
+            if (s == 0 or j >= guard) and (s + width == last or j < width - guard):
+                out[s + j] = np.maximum(out[s + j], v[j])
+    return out
+
+
 @given(st.integers(1, 30), st.integers(1, 10), st.integers(0, 4), st.integers(0, 2**31))
 def test_merge_max_equals_a_loop(n_windows: int, width: int, guard: int, seed: int) -> None:
     """Each window's steps merge by their maximum, but for its first and last ``guard`` ones;
@@ -28,14 +44,9 @@ def test_merge_max_equals_a_loop(n_windows: int, width: int, guard: int, seed: i
     values = rng.normal(size=(n_windows, width, 2))
     acc = np.full((40 + width, 2), -np.inf)
     last = int(starts[-1]) + width
-    merge_max(acc, values, starts, 0, guard, first=0, last=last)
-    brute = np.full((40 + width, 2), -np.inf)
-    for s, v in zip(starts, values, strict=True):
-        for j in range(width):
-            kept = (s == 0 or j >= guard) and (s + width == last or j < width - guard)
-            if kept:
-                brute[s + j] = np.maximum(brute[s + j], v[j])
-    np.testing.assert_array_equal(acc, brute)
+    merge_max(acc, values, starts, 0, guard, last)
+    np.testing.assert_array_equal(acc, merge_by_loop(40 + width, starts.tolist(), values, guard,
+                                                     last))
 
 
 def owner_by_loop(n: int, starts: list[int], width: int, hop: int) -> list[int]:
@@ -150,11 +161,7 @@ def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: i
     assert len(signal) == 3000
     windows, starts = frame(signal, 50, 20)
     scores = det.score(windows).point  # type: ignore[attr-defined]
-    brute = np.full(len(signal), -np.inf)
-    for s, p in zip(starts, scores, strict=True):
-        for j in range(50):
-            if (s == 0 or j >= guard) and (s + 50 == len(signal) or j < 50 - guard):
-                brute[s + j] = max(brute[s + j], p[j])
+    brute = merge_by_loop(len(signal), starts.tolist(), scores, guard, len(signal))
     assert np.isfinite(brute).all()
     np.testing.assert_allclose(got[:, 0], np.arange(len(signal)) / 100.0)
     np.testing.assert_allclose(got[:, 1], brute, rtol=1e-5, atol=1e-5)
@@ -218,9 +225,6 @@ def test_the_noise_floor_travels_with_the_windows() -> None:
         i += n
     stream.close()
     point = det.score(windows, {NOISE_FLOOR: floors}).point
-    brute, g = np.full(len(signal), -np.inf), det.edge_guard  # the detector's guard: 20 steps
-    assert g == 20
-    for s, p in zip(starts, point, strict=True):
-        lo, hi = (0 if s == 0 else g), (100 if s + 100 == len(signal) else 100 - g)
-        brute[s + lo:s + hi] = np.maximum(brute[s + lo:s + hi], p[lo:hi])
+    assert det.edge_guard == 20  # the detector's guard
+    brute = merge_by_loop(len(signal), starts.tolist(), point, det.edge_guard, len(signal))
     np.testing.assert_allclose(np.concatenate(traces), brute, rtol=1e-4, atol=1e-4)

@@ -56,11 +56,11 @@ class Event:
 
 
 def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], offset: int,
-              guard: int = 0, first: int = 0, last: int | None = None) -> None:
+              guard: int = 0, last: int | None = None) -> None:
     """In place: ``acc[s − offset + j] = max(acc[...], values[w, j])`` for window w at start s,
-    leaving out each window's first and last ``guard`` steps (a window that begins at sample
-    ``first``, the recording's first, keeps its first steps; one that ends at sample ``last``,
-    the recording's last, keeps its last ones).
+    leaving out each window's first and last ``guard`` steps (a window that begins at sample 0,
+    the recording's first, keeps its first steps; one that ends at sample ``last``, the
+    recording's last, keeps its last ones).
 
     ``acc`` holds per-sample scores (n, ...) from sample ``offset``; ``values`` (K, T, ...) the
     windows' per-step scores.
@@ -72,7 +72,7 @@ def merge_max(acc: NDArray[Any], values: NDArray[Any], starts: NDArray[Any], off
     """
     n_steps = values.shape[1]
     for w, start in enumerate(np.asarray(starts).tolist()):  # K slices: no scatter needed
-        lo = 0 if start == first else guard
+        lo = 0 if start == 0 else guard
         hi = n_steps if start + n_steps == last else n_steps - guard
         s = start - offset
         if hi > lo:
@@ -312,14 +312,12 @@ class StreamingDetector:
             context = None if self.meter is None else \
                 {NOISE_FLOOR: gather_windows(self.floor, at, self.window)}
             scores = self.detector.score(windows, context)
-            last = n_out if end else None
-            merge_max(self.point, scores.point, np.asarray(starts), self.final, self.guard, 0,
-                      last)
+            last = n_out if end else None  # the recording's last sample, once it is known
+            merge_max(self.point, scores.point, np.asarray(starts), self.final, self.guard, last)
             merge_max(self.channel, scores.channel, np.asarray(starts), self.final, self.guard,
-                      0, last)
+                      last)
             self.owned = assign_centres(self.centre, scores.channel, np.asarray(starts),
-                                        self.final, self.owned, self.hop,
-                                        n_out if end else None)
+                                        self.final, self.owned, self.hop, last)
             self.next_window = starts[-1] + self.hop
         # Final: no later window covers it. Regular windows start at next_window or later; the
         # tail window (added at the end) starts at n_total − window ≥ n_out − window.
