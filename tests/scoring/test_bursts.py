@@ -106,3 +106,20 @@ def test_two_bursts_one_look_each() -> None:
     assert np.all(np.abs(starts[0] - 40) < 10) and np.all(np.abs(starts[1] - 140) < 15)
     lengths = np.where(first.start > 100, first.length, second.length)  # the long burst's atom
     assert np.median(lengths) >= 20
+
+
+def test_each_series_on_its_own() -> None:
+    """A series' burst does not depend on the other series searched with it: the detector's
+    second look searches only the series where the first took one out, and must find there what
+    a search of every series finds."""
+    rng = np.random.default_rng(9)
+    w = rng.standard_normal((64, 200))
+    w[::3] += burst(200, 70, 12, 0.3, 4.0)
+    whole = best_burst(w, LENGTHS, 4.0, MARGIN, MINIMUM, RATIO)
+    some = np.flatnonzero(whole.kept | (np.arange(64) % 5 == 0))
+    part = best_burst(w[some], LENGTHS, 4.0, MARGIN, MINIMUM, RATIO)
+    assert 0 < whole.kept.sum() < 64
+    for name in ("kept", "start", "length", "freq"):
+        np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[some])
+    np.testing.assert_allclose(part.fit, whole.fit[some], atol=1e-12)
+    np.testing.assert_allclose(part.energy, whole.energy[some], rtol=1e-12)
