@@ -138,11 +138,11 @@ def test_without_a_floor_the_level_is_the_change_points() -> None:
 
     true = np.r_[np.full(90, 0.3), np.full(110, 0.6)]
     r = np.random.default_rng(5).standard_normal((4000, 200)) * true
-    level = noise_level(r, None, span=10)
+    level = noise_level(r, None)
     np.testing.assert_array_equal(level, changepoint_scale(r[:, :, None])[:, :, 0])
     error = np.sqrt(np.mean(np.log(level / true) ** 2))
     assert error < 0.128, error
-    one = noise_level(r, None, span=10, change=False)  # no change point: one scale per window
+    one = noise_level(r, None, change=False)  # no change point: one scale per window
     assert np.allclose(one, one[:, :1]) and abs(np.median(one) / 0.47 - 1) < 0.1
 
 

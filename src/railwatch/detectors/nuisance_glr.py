@@ -12,6 +12,8 @@ channel (vectorised over the N·C series, chunks of windows on up to two threads
    keeps them (a periodic vibration that is not a sinusoid); where the frequency jumps at one
    instant (the paper's speed change), a sinusoid of its own on each side of the jump, found as
    the kink of the oscillation's phase, when that lowers the residual's rms by ``change``.
+   With a noise floor (step 2) and ``floor_weights``, fitted to the series divided by the
+   floor's shape (weighted least squares; the Huber threshold in the series' own units).
 2. **Noise level**: where ``detect`` hands it the recording's noise floor
    (:mod:`railwatch.recordings.floor`: the level measured in the band that the resampling
    throws away), the residual is divided by its running median over ±``floor_span`` samples,
@@ -121,6 +123,7 @@ class NuisanceGLRConfig(DetectorConfig):
     change_point: bool = True  # without a floor, the level changes once per window (stage 4)
     energy_boxes: tuple[int, ...] = ()  # lengths of the energy family (none: off; field scale)
     floor_span: int = 10  # the noise floor's running median: ±samples (0.1 s at 100 Hz)
+    floor_weights: bool = True  # with a floor, the harmonic fitted to the series over its shape
     min_box: int = 5  # shortest local deviation, samples (spec: 0.05 s at 100 Hz)
     max_box: int = 20  # longest local deviation, samples (spec: 0.2 s at 100 Hz)
     bursts: bool = True  # take out a short oscillation better explained so than as a defect
@@ -153,24 +156,26 @@ class NuisanceGLRConfig(DetectorConfig):
             pass  # checked when the detector is used
 
 
-def noise_level(residual: NDArray[np.float64], floor: NDArray[np.float64] | None,
-                span: int, change: bool = True) -> NDArray[np.float64]:
+def noise_level(residual: NDArray[np.float64], shape: NDArray[np.float64] | None,
+                change: bool = True) -> NDArray[np.float64]:
     """The residual's noise std at every sample (B, T). Without a floor, a level with at most one
     change per series (``change``; its two sides' trimmed standard deviations are already the
-    noise's size), or one robust scale (1.4826 MAD) per series. With a floor (B, T, power), its
-    shape in time (√ of its running median over ±``span`` samples) times the robust scale of the
-    residual over that shape, one per series. ``residual / noise_level(...)`` is the whitened
-    residual."""
-    if floor is None and change:  # a second, window-wide scale on top only adds its own error
+    noise's size), or one robust scale (1.4826 MAD) per series. With a floor, its ``shape`` in
+    time (:func:`floor_shape`, B × T) times the robust scale of the residual over that shape, one
+    per series. ``residual / noise_level(...)`` is the whitened residual."""
+    if shape is None and change:  # a second, window-wide scale on top only adds its own error
         return changepoint_scale(residual[:, :, None])[:, :, 0]
-    if floor is None:
-        level = np.ones_like(residual)
-    else:
-        level = np.sqrt(median_filter(np.maximum(floor, 0.0), size=(1, 2 * span + 1),
-                                      mode="nearest"))
-        level = np.maximum(level, 1e-12 * (level.max(axis=1, keepdims=True) + 1e-300))
+    level = np.ones_like(residual) if shape is None else shape
     u = residual / level
     return level * (MAD_TO_STD * np.median(np.abs(u), axis=1, keepdims=True) + 1e-12)
+
+
+def floor_shape(floor: NDArray[np.float64], span: int) -> NDArray[np.float64]:
+    """The noise's std at every sample up to a factor per series (B, T): √ of the floor's
+    (B, T, power) running median over ±``span`` samples (a defect's edges do not raise it)."""
+    level = np.sqrt(median_filter(np.maximum(floor, 0.0), size=(1, 2 * span + 1),
+                                  mode="nearest"))
+    return np.maximum(level, 1e-12 * (level.max(axis=1, keepdims=True) + 1e-300))
 
 
 class NuisanceGLR(Detector):
@@ -211,13 +216,17 @@ class NuisanceGLR(Detector):
                                  f"floor_span={cfg.floor_span}")
         return families(cfg.min_box, cfg.max_box)
 
-    def nuisance(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Step 1: the harmonic model fitted to every series ``x`` (B, T); zeros without it."""
+    def nuisance(self, x: NDArray[np.float64], shape: NDArray[np.float64] | None = None
+                 ) -> NDArray[np.float64]:
+        """Step 1: the harmonic model fitted to every series ``x`` (B, T); zeros without it.
+        With a floor's ``shape`` (:func:`floor_shape`, B × T) and ``floor_weights``, fitted to
+        the series over it: weighted least squares."""
         cfg = self.config
         if not cfg.harmonic:
             return np.zeros_like(x)
         return harmonic_fit(x, cfg.poly, cfg.huber_k, cfg.irls_iterations, cfg.min_cycles,
-                            cfg.chirp, cfg.change, overtones=cfg.overtones)
+                            cfg.chirp, cfg.change, overtones=cfg.overtones,
+                            level=shape if cfg.floor_weights else None)
 
     def impulse_train(self, w: NDArray[np.float64]) -> Train:
         """The wheel's impulse train in the whitened residual ``w`` (B, T), with this detector's
@@ -226,28 +235,27 @@ class NuisanceGLR(Detector):
         return fit_train(w, cfg.min_period, cfg.max_period, cfg.impulse_correlation,
                          cfg.min_width, cfg.max_width, cfg.impulse_minimum, cfg.impulse_cap)
 
-    def whitened(self, r: NDArray[np.float64], floor: NDArray[np.float64] | None
+    def whitened(self, r: NDArray[np.float64], shape: NDArray[np.float64] | None
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64]]:
         """Steps 2-4 on the residual ``r`` (B, T) of every series (a copy is changed): with
         ``order``, the predictor's prediction error and its error filter (B, order + 1) that the
         tests are matched to (else None); then divided by the noise level, with the bursts and
         the impulse train taken out and the level raised where the same phase repeats. Returns
         the whitened residual, the error filter and the impulse train taken out (B, T), in
-        ``r``'s units. ``floor``: (B, T) or None."""
+        ``r``'s units. ``shape``: the floor's (:func:`floor_shape`, B × T) or None."""
         cfg = self.config
         r, c = np.array(r, dtype=np.float64), None
         if cfg.order:  # what the harmonic left, whitened: the test matched to c * box
             coef = robust_ar(r, cfg.order, cfg.huber_k, cfg.irls_iterations, cfg.ridge)
             r, c = prediction_error(r, coef), error_filter(coef)
-        level = noise_level(r, floor, cfg.floor_span, cfg.change_point)
+        level = noise_level(r, shape, cfg.change_point)
 
         def take_out(k: NDArray[np.bool_] | NDArray[np.intp], part: NDArray[np.float64]
                      ) -> None:
             """``part`` (in ``r``'s units) out of the series ``k``: it takes no part in their
             level either."""
             r[k] -= part
-            level[k] = noise_level(r[k], None if floor is None else floor[k], cfg.floor_span,
-                                   cfg.change_point)
+            level[k] = noise_level(r[k], None if shape is None else shape[k], cfg.change_point)
 
         impulses = np.zeros_like(r)
         if cfg.impulses:  # the wheel's impulse train, fitted and taken out
@@ -279,14 +287,16 @@ class NuisanceGLR(Detector):
         (:meth:`whitened`). Where an impulse train is taken out, the harmonic model is fitted
         again to the series less the train (a train pulls the harmonic's frequency and
         amplitudes, and the fit leaves part of every impulse), and the residual whitened
-        again."""
-        w, c, impulses = self.whitened(x - self.nuisance(x), floor)
+        again. ``floor``: (B, T, power) or None."""
+        shape = None if floor is None else floor_shape(floor, self.config.floor_span)
+        w, c, impulses = self.whitened(x - self.nuisance(x, shape), shape)
         if not (self.config.impulses and self.config.harmonic):
             return w, c
         k = np.flatnonzero(impulses.any(axis=1))
         if len(k):
-            again = x[k] - self.nuisance(x[k] - impulses[k])
-            w[k], ck, _ = self.whitened(again, None if floor is None else floor[k])
+            part = None if shape is None else shape[k]
+            again = x[k] - self.nuisance(x[k] - impulses[k], part)
+            w[k], ck, _ = self.whitened(again, part)
             if c is not None and ck is not None:
                 c[k] = ck
         return w, c

@@ -138,15 +138,22 @@ def overtone_columns(sin1: F64, cos1: F64, freq: F64, overtones: int) -> F64:
 
 
 def robust_fit(x: F64, design: F64, huber_k: float = 1.345,
-               iterations: int = 2) -> tuple[F64, F64]:
+               iterations: int = 2, level: F64 | None = None) -> tuple[F64, F64]:
     """Huber-IRLS least squares of every series ``x`` (B, T) on its ``design`` (B, T, P): the
     fit (B, T) and the robust scale (B,) that sets the Huber threshold, 1.4826 MAD of the
-    least-squares residual (held through the reweightings: one median per series)."""
+    least-squares residual (held through the reweightings: one median per series).
+
+    With ``level`` (B, T), ``x`` and ``design`` are a series and its design divided by it
+    (weighted least squares), and the Huber threshold is set on the residual times ``level``,
+    the series' own units: what the model does not hold (a defect, an impulse, a burst) is as
+    large on quiet track as on loud, and measured against the noise of quiet track every
+    impulse there would be an outlier. The scale returned is still that of ``x - fit``."""
     eye = np.eye(design.shape[2])
     weights = np.ones_like(x)
     weighted = design  # the first pass is unweighted; then one buffer for every pass
     fit = np.zeros_like(x)
     sigma = np.ones(len(x))
+    cut = sigma
     for it in range(iterations + 1):
         if it:
             weighted = np.empty_like(design) if it == 1 else weighted
@@ -161,7 +168,11 @@ def robust_fit(x: F64, design: F64, huber_k: float = 1.345,
         resid = x - fit
         if it == 0:
             sigma = MAD_TO_STD * np.median(np.abs(resid), axis=1) + 1e-12
-        weights = np.minimum(1.0, huber_k * sigma[:, None] / np.maximum(np.abs(resid), 1e-300))
+            cut = sigma if level is None else \
+                MAD_TO_STD * np.median(np.abs(resid * level), axis=1) + 1e-12
+        if level is not None:
+            resid = resid * level
+        weights = np.minimum(1.0, huber_k * cut[:, None] / np.maximum(np.abs(resid), 1e-300))
     return fit, sigma
 
 
@@ -215,7 +226,7 @@ def phase_break(x: F64, min_segment: int, step: int = 2, edge: int = 8, band: fl
 
 def harmonic_fit(x: F64, poly: int = 2, huber_k: float = 1.345, iterations: int = 3,
                  min_cycles: float = 0.5, chirp: bool = True, change: float = 0.0,
-                 min_segment: int = 20, overtones: int = 0) -> F64:
+                 min_segment: int = 20, overtones: int = 0, level: F64 | None = None) -> F64:
     """The fitted model x̂ (B, T) of every series ``x`` (B, T): the module docstring's model at
     :func:`dominant_frequency` (with ``chirp``, changing at :func:`chirp_rate`), by least
     squares then ``iterations`` Huber reweightings (threshold ``huber_k`` robust standard
@@ -230,27 +241,56 @@ def harmonic_fit(x: F64, poly: int = 2, huber_k: float = 1.345, iterations: int 
 
     With ``overtones`` K > 0, a vibration that is periodic but not a sinusoid: the model with
     the fundamental's 2nd to (K + 1)th harmonics (one sine and cosine each) replaces the first
-    where the likelihood-ratio test says so (:func:`with_overtones`)."""
+    where the likelihood-ratio test says so (:func:`with_overtones`).
+
+    With ``level`` (B, T), the noise's std at every sample up to a factor per series (a noise
+    floor's shape in time), everything is done on the series divided by it: the spectral peaks
+    and the fits (weighted least squares, the Huber threshold in the series' own units:
+    :func:`robust_fit`), the tests in noise variances. A window half on quiet and half on loud
+    track is fitted where the noise lets the vibration be seen; unweighted, its loud half's
+    noise can outweigh a weak vibration's spectral peak and the model then fits noise."""
+    if level is not None:  # on x / level; the fit multiplied back at the end
+        inverse = 1.0 / level
+        x = x * inverse
     freq = dominant_frequency(x, min_cycles)
     rate = chirp_rate(x, freq) if chirp else None
     design = basis(x.shape[1], freq, poly, rate)
-    fit, sigma = robust_fit(x, design, huber_k, iterations)
+    sin1, cos1 = design[:, :, 2], design[:, :, 3]
+    if level is not None:
+        sin1, cos1 = sin1.copy(), cos1.copy()
+        design *= inverse[:, :, None]
+    fit, sigma = robust_fit(x, design, huber_k, iterations, level)
     if overtones > 0:
-        fit = with_overtones(x, fit, sigma, design, overtone_columns(
-            design[:, :, 2], design[:, :, 3], freq, overtones), huber_k, iterations)
-    if change <= 0 or x.shape[1] < 2 * min_segment:
-        return fit
+        columns = overtone_columns(sin1, cos1, freq, overtones)
+        if level is not None:
+            columns *= inverse[:, :, None]
+        fit = with_overtones(x, fit, sigma, design, columns, huber_k, iterations, level)
+    jumps = np.zeros(0, dtype=np.int64)
+    if change > 0 and x.shape[1] >= 2 * min_segment:
+        split, share = phase_break(x, min_segment, freq=freq)
+        jumps = np.flatnonzero(share >= MIN_JUMP)  # the others keep the first model
+    if len(jumps):
+        fit = two_sided(x, fit, sigma, design, jumps, split[jumps], change, huber_k, iterations,
+                        min_cycles, level)
+    return fit if level is None else fit * level
+
+
+def two_sided(x: F64, fit: F64, sigma: F64, design: F64, jumps: NDArray[np.int64],
+              split: NDArray[np.int64], change: float, huber_k: float, iterations: int,
+              min_cycles: float, level: F64 | None) -> F64:
+    """:func:`harmonic_fit`'s ``fit`` (B, T) replaced, on the series ``jumps`` whose frequency
+    changes at ``split``, by a sinusoid on either side (the intercept and trend of ``design``
+    shared) where that lowers the residual's clipped power by the share ``change`` of its rms;
+    ``x``, ``fit`` and ``design`` divided by ``level`` when it is given."""
     n = x.shape[1]
-    split, share = phase_break(x, min_segment, freq=freq)
-    jumps = np.flatnonzero(share >= MIN_JUMP)  # the others keep the first model
-    if not len(jumps):
-        return fit
-    x2, split = x[jumps], split[jumps]
+    x2 = x[jumps]
     cols = [design[jumps, :, :2]]  # the shared intercept and trend
     for lo, hi in ((np.zeros_like(split), split), (split, np.full_like(split, n))):
         taper = segment_taper(n, lo, hi)
-        cols.append(basis(n, dominant_frequency(x2, min_cycles, taper), 1, None, taper > 0))
-    fit2, _ = robust_fit(x2, np.concatenate(cols, axis=2), huber_k, iterations)
+        side = basis(n, dominant_frequency(x2, min_cycles, taper), 1, None, taper > 0)
+        cols.append(side if level is None else side / level[jumps, :, None])
+    fit2, _ = robust_fit(x2, np.concatenate(cols, axis=2), huber_k, iterations,
+                         None if level is None else level[jumps])
     clip = (3 * sigma[jumps, None]) ** 2  # a defect counts the same in both
 
     def power(fitted: F64) -> F64:
@@ -262,14 +302,14 @@ def harmonic_fit(x: F64, poly: int = 2, huber_k: float = 1.345, iterations: int 
 
 
 def with_overtones(x: F64, fit: F64, sigma: F64, design: F64, overtones: F64, huber_k: float,
-                   iterations: int) -> F64:
+                   iterations: int, level: F64 | None = None) -> F64:
     """``fit`` (B, T) of ``design`` replaced by the fit on ``design`` and its ``overtones``
     (:func:`overtone_columns`) where that lowers the residual's power, squares clipped at 9
     robust variances ``sigma²`` (a defect weighs the same in both), by more than
     :data:`OVERTONE_CHI2` noise variances per added column: the likelihood-ratio test of the
     overtones, which a sinusoid in white noise passes about once in 10,000 series. Only the
     series where the overtones alone explain half of that of the first fit's clipped residual
-    (least squares) are fitted again."""
+    (least squares) are fitted again. ``level``: as :func:`robust_fit`'s."""
     added = (np.abs(overtones).sum(axis=1) > 0).sum(axis=1)  # the columns below Nyquist
     need = OVERTONE_CHI2 * np.maximum(added, 1) * sigma ** 2
     r = np.clip(x - fit, -3 * sigma[:, None], 3 * sigma[:, None])
@@ -281,7 +321,7 @@ def with_overtones(x: F64, fit: F64, sigma: F64, design: F64, overtones: F64, hu
     if not len(rows):
         return fit
     richer, _ = robust_fit(x[rows], np.concatenate([design[rows], overtones[rows]], axis=2),
-                           huber_k, iterations)
+                           huber_k, iterations, None if level is None else level[rows])
     clip = (3 * sigma[rows, None]) ** 2
     drop = (np.minimum((x[rows] - fit[rows]) ** 2, clip)
             - np.minimum((x[rows] - richer) ** 2, clip)).sum(axis=1)
