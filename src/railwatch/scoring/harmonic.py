@@ -255,15 +255,14 @@ def harmonic_fit(x: F64, poly: int = 2, huber_k: float = 1.345, iterations: int 
     freq = dominant_frequency(x, min_cycles)
     rate = chirp_rate(x, freq) if chirp else None
     design = basis(x.shape[1], freq, poly, rate)
-    sin1, cos1 = design[:, :, 2], design[:, :, 3]
+    columns = overtone_columns(design[:, :, 2], design[:, :, 3], freq, overtones) \
+        if overtones > 0 else None
     if level is not None:
-        sin1, cos1 = sin1.copy(), cos1.copy()
         design *= inverse[:, :, None]
-    fit, sigma = robust_fit(x, design, huber_k, iterations, level)
-    if overtones > 0:
-        columns = overtone_columns(sin1, cos1, freq, overtones)
-        if level is not None:
+        if columns is not None:
             columns *= inverse[:, :, None]
+    fit, sigma = robust_fit(x, design, huber_k, iterations, level)
+    if columns is not None:
         fit = with_overtones(x, fit, sigma, design, columns, huber_k, iterations, level)
     jumps = np.zeros(0, dtype=np.int64)
     if change > 0 and x.shape[1] >= 2 * min_segment:
