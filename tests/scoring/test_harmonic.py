@@ -9,9 +9,12 @@ from railwatch.scoring.harmonic import (
     basis,
     chirp_rate,
     dominant_frequency,
+    harmonic_design,
     harmonic_fit,
-    overtone_columns,
+    oscillation,
+    overtone_design,
     phase_break,
+    robust_fit,
 )
 
 
@@ -127,10 +130,9 @@ def test_overtone_columns_are_the_harmonics_below_nyquist() -> None:
     """The recurrence gives sin k φ and cos k φ of the basis' chirp, and nothing where k f is
     near or above Nyquist."""
     freq, rate = np.array([0.05, 0.2]), np.array([1e-5, -2e-5])
-    design = basis(200, freq, 2, rate)
     t = np.arange(200.0)
     phase = 2 * np.pi * freq[:, None] * t + np.pi * rate[:, None] * (t - 99.5) ** 2
-    cols = overtone_columns(design[:, :, 2], design[:, :, 3], freq, 3)
+    cols = overtone_design(*oscillation(200, freq, rate), freq, 3).dense()
     for i, k in enumerate((2, 3, 4)):
         below = (k * freq < 0.45)[:, None]
         np.testing.assert_allclose(cols[:, :, 2 * i], np.sin(k * phase) * below, atol=1e-9)
@@ -215,3 +217,38 @@ def test_weighted_fit_finds_a_weak_vibration_beside_loud_track() -> None:
     # unweighted 0.41: the Huber threshold is set on the loud part's noise too)
     left = (boxed - harmonic_fit(boxed, change=0.1, overtones=2, level=level) - vib)[:, 40:55]
     assert np.median(left.mean(axis=1)) > 0.35
+
+
+def test_design_normal_equations_and_fit_against_the_matrix() -> None:
+    """The design's weighted normal equations and its fitted values equal those of its dense
+    matrix (brute force), with carriers on disjoint spans (two sides: blocks of zeros), the
+    constant, and overtones of degree 0; a robust fit with a level equals the weighted fit of
+    the series over it."""
+    rng = np.random.default_rng(9)
+    n, split = 120, rng.integers(30, 90, 5)
+    mask = np.arange(n)[None, :] < split[:, None]
+    freq = rng.uniform(0.02, 0.2, 5)
+    design = (harmonic_design(n, freq, 2, rng.uniform(-1e-4, 1e-4, 5))
+              + harmonic_design(n, freq * 1.3, 1, None, mask)
+              + harmonic_design(n, freq * 0.8, 1, None, ~mask)
+              + overtone_design(*oscillation(n, freq), freq, 2))
+    dense = design.dense()
+    assert dense.shape == (5, n, design.width) == (5, n, 8 + 4 + 4 + 4)
+    weights, y = rng.uniform(0.1, 2.0, (5, n)), rng.standard_normal((5, n))
+    gram, rhs = design.normal_equations(weights, y)
+    np.testing.assert_allclose(gram, np.einsum("btp,bt,btq->bpq", dense, weights, dense),
+                               atol=1e-10)
+    np.testing.assert_allclose(rhs, np.einsum("btp,bt,bt->bp", dense, weights, y), atol=1e-10)
+    coef = rng.standard_normal((5, design.width))
+    np.testing.assert_allclose(design.evaluate(coef), np.einsum("btp,bp->bt", dense, coef),
+                               atol=1e-10)
+    sides = design.rows(np.array([1, 3]))
+    np.testing.assert_allclose(sides.dense(), dense[[1, 3]])
+    level = rng.uniform(0.5, 3.0, (5, n))
+    fit, _ = robust_fit(y, design, iterations=0, level=level)
+    for i in range(5):
+        coef_i = np.linalg.lstsq(dense[i] / level[i, :, None], y[i] / level[i], rcond=None)[0]
+        np.testing.assert_allclose(fit[i], dense[i] @ coef_i, atol=1e-6)
+    _, sigma = robust_fit(y, design, iterations=1, level=level)  # the first fit's scale
+    np.testing.assert_allclose(sigma, 1.4826 * np.median(np.abs((y - fit) / level), axis=1)
+                               + 1e-12)
