@@ -44,7 +44,6 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     from railwatch.detection import pipeline
     from railwatch.recordings.layout import load_layout
     from railwatch.recordings.readers import Recording
-    from railwatch.report.figures import plot_detection
 
     if out.suffix.lower() not in (".csv", ".json"):
         raise RailwatchError(f"--out {out.name}: write events to a .csv or .json file")
@@ -63,6 +62,8 @@ def detect(obj: dict, model: Path, recording: Path, out: Path, layout_file: Path
     elapsed = time.perf_counter() - started
     pipeline.write_events(out, result.events)
     if plot is not None:
+        from railwatch.report.figures import plot_detection  # matplotlib: only for a plot
+
         title = (f"{recording.name}: {len(result.events)} events in "
                  f"{rec.duration_s / 60:.1f} min")
         plot_detection(result, plot, title=title, truth=marks)
