@@ -186,7 +186,7 @@ class Design:
                    for a, da in zip(self.carriers, self.degrees, strict=True)
                    for j in range(da + 1)]
         batch = next((len(a) for a in self.carriers if a is not None), 1)
-        return np.stack(np.broadcast_arrays(*columns, np.empty((batch, self.n)))[:-1], axis=2)
+        return np.stack([np.broadcast_to(c, (batch, self.n)) for c in columns], axis=2)
 
 
 def oscillation(n: int, freq: F64, rate: F64 | None = None) -> tuple[F64, F64]:
@@ -208,12 +208,6 @@ def harmonic_design(n: int, freq: F64, poly: int, rate: F64 | None = None,
     if mask is not None:
         return Design((sin * mask, cos * mask), (poly, poly), n)
     return Design((None, sin, cos), (1, poly, poly), n)
-
-
-def basis(n: int, freq: F64, poly: int, rate: F64 | None = None,
-          mask: NDArray[np.bool_] | None = None) -> F64:
-    """:func:`harmonic_design` as a matrix (B, n, P)."""
-    return harmonic_design(n, freq, poly, rate, mask).dense()
 
 
 def overtone_design(sin1: F64, cos1: F64, freq: F64, overtones: int) -> Design:
