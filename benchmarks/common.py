@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -48,6 +49,13 @@ def railwatch(*args: str, one_core: bool = False, quiet: bool = True,
         wall = time.perf_counter() - start
         peak_kib = float(Path(peak_file.name).read_text().split()[-1])
     return Ran(wall, peak_kib / 1024, done.stderr if capture else "")
+
+
+def real_time_factor(said: str) -> float:
+    """The real-time factor ``railwatch detect`` reports in its last line ("... scanned in
+    4.0 s (150x real time) ..."): reading, preparing and scoring, not start-up; NaN if absent."""
+    found = re.search(r"\((\d+)x real time\)", said)
+    return float(found.group(1)) if found else float("nan")
 
 
 def command(module: str) -> str:

@@ -49,7 +49,6 @@ import argparse
 import datetime
 import json
 import math
-import re
 import shutil
 import sys
 import time
@@ -59,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.common import command, railwatch, read_csv
+from benchmarks.common import command, railwatch, read_csv, real_time_factor
 
 #: What this benchmark reads that others made (run them first, same --work), the page
 #: it writes (None: it prints its table) and about how long it takes on 2 cores.
@@ -687,12 +686,11 @@ def main() -> None:
             out = cli("detect", "--model", str(model), "--recording",
                       str(long / "pass01.parquet"), "--out", str(args.work / "speed.csv"),
                       one_core=True).stderr
-            found = re.search(r"\((\d+)x real time\)", out)
-            factors.append(int(found.group(1)) if found else 0)
+            factors.append(real_time_factor(out))
         timed = sorted(factors[1:])
-        said.append(f"{detector} **{timed[len(timed) // 2]}x real time** ({timed[0]}-"
-                    f"{timed[-1]}x; after a first run that compiled the bytecode: "
-                    f"{factors[0]}x)")
+        said.append(f"{detector} **{timed[len(timed) // 2]:.0f}x real time** ({timed[0]:.0f}-"
+                    f"{timed[-1]:.0f}x; after a first run that compiled the bytecode: "
+                    f"{factors[0]:.0f}x)")
     lines += ["## Speed\n",
               "`detect` with defaults on one core (`taskset -c 0`, one thread), a 2 kHz "
               f"six-channel pass over 10 km ({minutes(long, 'pass01'):.1f} min), the median of "

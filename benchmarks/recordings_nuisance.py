@@ -28,13 +28,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import command, match, railwatch
+from benchmarks.common import command, match, railwatch, real_time_factor
 from railwatch.atomic import atomic_csv
 from railwatch.detection.oracle import null_threshold, oracle_events
 from railwatch.synthetic.runs import DEFECT_FIELDS, Variation, synthesize_run
@@ -187,7 +186,6 @@ def main() -> None:
                 ran = railwatch("detect", "--model", str(model), "--recording", str(c),
                                 "--out", str(events_path), one_core=True, quiet=False,
                                 capture=True)
-                said = re.search(r"\((\d+)x real time\)", ran.stderr)
                 events = read_events(events_path)
                 truth = c.with_suffix(".defects.csv")
                 found, false, channel = match(events, truth)
@@ -198,7 +196,7 @@ def main() -> None:
                 bound = best_at_false_rate(read_events(low_path), truth, TARGET_FALSE)
                 split = by_stretch(events, truth, int(KINDS[kind][1]), trio[2])
                 rows.append({"detector": det, "kind": kind, "trio": trio, "fit_s": fit_s,
-                             "rtf": float(said.group(1)) if said else float("nan"),
+                             "rtf": real_time_factor(ran.stderr),
                              "rtf_command": RUN_MINUTES * 60 / ran.wall_s, "found": found,
                              "false_min": false / RUN_MINUTES, "channel": channel,
                              "events": len(events), "model": model, "test": c,

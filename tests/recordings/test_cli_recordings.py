@@ -153,11 +153,15 @@ def test_short_window_and_a_run_without_defects(runs: Path, tmp_path: Path) -> N
     assert isinstance(json.loads((tmp_path / "e.json").read_text()), list)
 
 
-def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     """``train --wheel-comb`` keeps the comb in the model, ``detect`` combs each recording the
-    same way (stage 8: impulses on every channel); a layout without position or speed, and
-    windows instead of recordings, are one-line errors."""
+    same way (stage 8: impulses on every channel) and reports its real-time factor as the
+    benchmarks read it; a layout without position or speed, and windows instead of recordings,
+    are one-line errors."""
     from railwatch.detection.pipeline import prepared_chunks
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks.common import real_time_factor
 
     run = tmp_path / "run.parquet"
     assert main(["-q", "generate-run", "--minutes", "3", "--stage", "8", "--seed", "3",
@@ -179,6 +183,7 @@ def test_wheel_comb_through_train_and_detect(tmp_path: Path, capsys) -> None:  #
     assert read_events(tmp_path / "e.csv")
     said = capsys.readouterr().err
     assert "wheel comb: " in said and " m" in said, said
+    assert real_time_factor(said) > 0, said  # what bench-recordings-nuisance and physics read
 
     bare = tmp_path / "bare.toml"
     bare.write_text("\n".join(line for line in layout.read_text().splitlines()
