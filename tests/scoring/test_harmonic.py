@@ -125,7 +125,7 @@ def test_a_speed_change_is_modelled_and_a_box_on_it_kept() -> None:
     assert np.median(left) > 0.85
 
 
-def test_overtone_columns_are_the_harmonics_below_nyquist() -> None:
+def test_overtone_design_is_the_harmonics_below_nyquist() -> None:
     """The recurrence gives sin k φ and cos k φ of the basis' chirp, and nothing where k f is
     near or above Nyquist."""
     freq, rate = np.array([0.05, 0.2]), np.array([1e-5, -2e-5])

@@ -23,7 +23,7 @@ The paper's windows change speed at one instant instead (stages 2-8: the frequen
 
 A vibration that repeats but is not a sinusoid (a wheel out of round, a clipped or rectified
 wave) has power at the harmonics of its fundamental: :func:`harmonic_fit` with ``overtones``
-adds the 2nd, 3rd, ... harmonics (:func:`overtone_columns`) where a likelihood-ratio test keeps
+adds the 2nd, 3rd, ... harmonics (:func:`overtone_design`) where a likelihood-ratio test keeps
 them (:func:`with_overtones`), so that a sinusoid keeps its smaller model.
 """
 
