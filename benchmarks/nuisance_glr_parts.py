@@ -125,7 +125,7 @@ def variant_row(work: Path, stage: int, trio: tuple[int, int, int], variant: str
     prep = Preparation()
     X, context = training_set([Recording(p, layout) for p in (a, b)], prep, floor=floor)
     det = create(name, {"progress": False, **settings}).fit(X, context)
-    threshold = det.set_threshold(event_threshold(prep, EVENTS_PER_MINUTE["benchmark"]))
+    threshold = det.set_threshold(event_threshold(prep, EVENTS_PER_MINUTE))
     low = [e.to_dict() for e in detect(det, Recording(c, layout), prep, threshold / 2).events]
     truth = c.with_suffix(".defects.csv")
     events = [e for e in low if e["score"] > threshold]

@@ -148,7 +148,7 @@ def oracle_events(folder: Path, name: str) -> list[dict[str, float]]:
     from railwatch.detection.pipeline import EVENTS_PER_MINUTE
 
     kept = folder.parent / folder.name.replace("-gnss", "") / \
-        f"{name}.oracle-{EVENTS_PER_MINUTE['field']:g}pm.json"
+        f"{name}.oracle-{EVENTS_PER_MINUTE:g}pm.json"
     if kept.exists():
         return list(json.loads(kept.read_text()))
     events = _oracle_events(folder, name)
@@ -225,7 +225,7 @@ def oracle_threshold(track: Path) -> float:
     window = int(round(rm.preparation.window_s * rm.layout.fs))
     null = np.random.default_rng(0).standard_normal((12000, window, len(rm.layout.channels)))
     scores = oracle_scores(null, np.zeros_like(null), np.ones_like(null), instance=True)
-    return float(np.quantile(scores, 1 - pipeline.EVENTS_PER_MINUTE["field"]
+    return float(np.quantile(scores, 1 - pipeline.EVENTS_PER_MINUTE
                              * rm.preparation.window_s / 60))
 
 

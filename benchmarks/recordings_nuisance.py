@@ -8,7 +8,7 @@ noise). Every trio counts, not the best one: the target (issue 29) is, in each, 
 within +-0.25 s found within 5 points of the oracle's bound, <= 0.2 false events per minute, the
 loud track's false rate at most twice the quiet track's. `detect` runs on one core (taskset, one
 thread): its own real-time factor (reading, resampling, scoring, events) and the whole
-command's. `nuisance-glr@0.1` is nuisance-glr trained with `--events-per-minute 0.1`.
+command's.
 
 Beside each detector stands the **oracle** (`railwatch.detection.oracle`): it knows each run's
 clean signal (sinusoids, bursts, impulses) and noise level, whitens the run with them and
@@ -17,8 +17,8 @@ from white noise (0.2 false events per minute), its bound from the test run as t
 bound does. A second table runs it on the test runs of stages 5-8 with and without loud
 stretches: what each nuisance costs what the data allow.
 
-Run: `make bench-recordings-nuisance` (about 45 minutes on 2 Intel Xeon cores for the four
-default detectors, 27 on AMD EPYC for three, 10 when their models are kept in `--work`).
+Run: `make bench-recordings-nuisance` (about 45 minutes on 2 Intel Xeon cores for the
+three default detectors, 27 on AMD EPYC, 10 when their models are kept in `--work`).
 `--detectors matched-filter,matched-filter-wheel` measures the matched filter without and with
 `train --wheel-comb` (about 5 minutes).
 """
@@ -53,11 +53,7 @@ RUN_MINUTES = 10  # each run's length
 TARGET_GAP, TARGET_FALSE, TARGET_LOUD, TARGET_RTF = 0.05, 0.2, 2.0, 100.0
 FS = 2000.0  # `generate-run`'s rate
 #: Labels that train a registry detector with `train` flags (as in benchmarks/track_map.py).
-#: ``@0.1``: the event threshold at 0.1 windows per minute of the training null (the field
-#: scale's default; the benchmark scale's is 0.6), the operating point the target's 0.2 false
-#: events per minute asks for (chosen on these development trios, 2026-12-07).
-TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",)),
-               "nuisance-glr@0.1": ("nuisance-glr", ("--events-per-minute", "0.1"))}
+TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
 
 
 def oracle_row(work: Path, stage: int, loud: bool, seed: int,  # type: ignore[type-arg]
@@ -150,7 +146,7 @@ def main() -> None:
     parser.add_argument("--work", default="runs/recordings-nuisance",
                         help="folder for runs and models (kept)")
     parser.add_argument("--detectors",
-                        default="nuisance-glr,nuisance-glr@0.1,context-glr,aft-attention")
+                        default="nuisance-glr,context-glr,aft-attention")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="config override passed to every 'train'")
     args = parser.parse_args()

@@ -40,9 +40,11 @@ def test_windows_of_a_run(model) -> None:  # type: ignore[no-untyped-def]
 
 def test_the_event_threshold_is_stored_once(model) -> None:  # type: ignore[no-untyped-def]
     folder, det, _, threshold = model
-    assert threshold == GumbelNull(0.02).fit(det.decision_scores_) == det.threshold_
+    tail = round(0.1 * 2 / 60, 12)  # 0.1 per minute (pipeline.EVENTS_PER_MINUTE), 2-s windows
+    assert threshold == GumbelNull(tail).fit(det.decision_scores_) == det.threshold_
     info = json.loads((folder / "model" / "recording.json").read_text())
-    assert "threshold" not in info and info["threshold_rule"] == "gumbel_null(tail=0.02)"
+    assert "threshold" not in info
+    assert info["threshold_rule"] == "gumbel_null(tail=0.00333333)"
     rm = pipeline.load_recording_model(folder / "model")
     assert rm.threshold == threshold == rm.detector.threshold_
 

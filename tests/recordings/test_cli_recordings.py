@@ -60,9 +60,12 @@ def runs(tmp_path_factory) -> Path:  # type: ignore[no-untyped-def]
 @pytest.mark.slow
 def test_train_and_detect_find_the_defects(runs: Path) -> None:
     model = runs / "model"
+    # The recordings issue's target asks >= 80 % of the defects at <= 1 false event per minute:
+    # its operating point (the default, 0.1 per minute, finds 78 % here with none false).
     assert main(["-q", "train", "--detector", "aft-attention", "--recordings",
                  str(runs / "train1.parquet"), str(runs / "train2.h5"),
-                 "--layout", str(runs / "train1.layout.toml"), "--out", str(model)]) == 0
+                 "--layout", str(runs / "train1.layout.toml"), "--out", str(model),
+                 "--events-per-minute", "0.6"]) == 0
     info = json.loads((model / "recording.json").read_text())
     assert info["preparation"]["rate"] == 100.0 and info["layout"]["fs"] == 2000.0
     events_path, plot = runs / "events.csv", runs / "events.png"

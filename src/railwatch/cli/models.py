@@ -45,8 +45,7 @@ How they are prepared follows the layout's scale (docs/recordings.md):
 --resample, --window, --hop and --groups override the choice, which train prints. Training
 uses no labels; the model folder keeps the layout of the scored channels, the preparation and
 an event threshold for 'railwatch detect': the level that normal recording would cross in 0.1
-windows per minute at field scale (0.6 at the benchmark's), by the training windows' null;
---events-per-minute sets it.
+windows per minute, by the training windows' null; --events-per-minute sets it.
 --wheel-comb takes out, before resampling, impulses that repeat at every turn of a wheel (flat
 or out-of-round wheels): each channel's turn is found in each recording (its cepstrum over
 distance; channels without a clear one are left alone) and every sample loses the mean of the

@@ -91,21 +91,24 @@ def training_set(recordings: Sequence[Recording], prep: Preparation,
 
 
 #: Windows of normal recording per minute above the event threshold, by the null of the
-#: training windows (:func:`event_threshold`), per layout scale (``train --events-per-minute``).
-#: At field scale 0.1: a pass of a few minutes then shows at most one or two false events, so
-#: that every pass stays under 0.5 per minute, not only their mean (on the development physics
+#: training windows (:func:`event_threshold`; ``train --events-per-minute``), at either scale.
+#: A pass of a few minutes then shows at most one or two false events, so that every pass stays
+#: under 0.5 per minute, not only their mean. At field scale, on the development physics
 #: tracks, 0.6 left 4 of 40 passes above 0.5 per minute, up to 1.13; 0.1: none, at most 0.27,
-#: and the same defects but 1-2 % of the weakest;
-#: docs/notes/2026-12-03-false-rate-and-crownless-welds.md).
-#: The benchmark scale keeps the rate its recordings and maps were measured with.
-EVENTS_PER_MINUTE = {"field": 0.1, "benchmark": 0.6}
+#: and the same defects but 1-2 % of the weakest
+#: (docs/notes/2026-12-03-false-rate-and-crownless-welds.md). At the benchmark scale, on the
+#: development trios of stage-5 runs with loud stretches, nuisance-glr found 95-98 % of the
+#: defects at 0.3-0.6 false events per minute with 0.6 and 92-97 % at 0.0-0.3 with 0.1
+#: (the oracle's bound 95-97 %; docs/notes/2026-12-07-the-operating-point.md): the benchmark
+#: scale's 0.6 until 2026-12-07.
+EVENTS_PER_MINUTE = 0.1
 
 
 def event_threshold(prep: Preparation, per_minute: float) -> GumbelNull:
     """The event threshold's rule for windows of ``prep``: the Gumbel null of the training
-    windows at a tail of ``per_minute`` windows per minute of recording (the scale's default:
+    windows at a tail of ``per_minute`` windows per minute of recording (the default:
     :data:`EVENTS_PER_MINUTE`), so that short field-scale windows do not raise false events by
-    their number (2-s windows at 0.6 per minute: a tail of 0.02)."""
+    their number (2-s windows at 0.1 per minute: a tail of 0.0033; 0.5-s windows: 0.00083)."""
     if not per_minute > 0:
         raise RailwatchError(f"--events-per-minute must be positive, got {per_minute:g}")
     tail = round(per_minute * prep.window_s / 60.0, 12)
@@ -145,7 +148,7 @@ def recording_info(layout: Layout, prep: Preparation,
     layout, the preparation, the rule that set the detector's threshold (the value itself is
     stored once, with the detector's statistics) and, when identified, the axle boxes'
     response (the weld test's, :mod:`railwatch.recordings.rails`)."""
-    rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
+    rule = rule or event_threshold(prep, EVENTS_PER_MINUTE)
     info: dict[str, Any] = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
                             "threshold_rule": rule.describe()}
     if response is not None:
@@ -159,10 +162,10 @@ def fit_recording_model(detector: Detector, X: NDArray[np.float32], layout: Layo
                         response: rails.AxleResponse | None = None,
                         context: dict[str, NDArray[np.float32]] | None = None) -> float:
     """Fit ``detector`` on recordings' windows ``X`` (:func:`training_windows`), set its
-    threshold by ``rule`` (default :func:`event_threshold` at the layout scale's rate) and save
+    threshold by ``rule`` (default :func:`event_threshold` at :data:`EVENTS_PER_MINUTE`) and save
     the model folder with ``recording.json`` (and the axle boxes' ``response``, if any);
     ``context``: the windows' side arrays (:func:`training_set`); returns the threshold."""
-    rule = rule or event_threshold(prep, EVENTS_PER_MINUTE[layout.scale])
+    rule = rule or event_threshold(prep, EVENTS_PER_MINUTE)
     detector.fit(X, context)
     threshold = detector.set_threshold(rule)
     detector.save(out, extra_files=recording_info(layout, prep, rule, response))
@@ -193,7 +196,7 @@ def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Pa
     recordings ``paths`` read with ``layout``, prepared as :func:`railwatch.recordings.prepare.
     choose` picks from the layout's scale, rate and the recordings' median speed (``rate``,
     ``window_s``, ``hop_s``, ``groups`` and ``wheel_comb`` override it), its event threshold set
-    at ``events_per_minute`` (default by the scale, :data:`EVENTS_PER_MINUTE`) and saved with its
+    at ``events_per_minute`` (default :data:`EVENTS_PER_MINUTE`) and saved with its
     ``recording.json`` to ``out``. ``say`` gets the choices in words; every file and setting is
     checked before any is read."""
     from railwatch.detectors import create
@@ -210,7 +213,7 @@ def train_on_recordings(name: str, overrides: dict[str, Any], paths: Sequence[Pa
                     hop_s=hop_s, chosen_groups=groups, wheel_turns=2 if wheel_comb else 0)
     prep = choice.preparation
     prep.check(layout.fs)  # fail now, not at detection, on an impossible rate, window or hop
-    per_minute = EVENTS_PER_MINUTE[layout.scale] if events_per_minute is None \
+    per_minute = EVENTS_PER_MINUTE if events_per_minute is None \
         else events_per_minute
     rule = event_threshold(prep, per_minute)  # and on an impossible rate of events
     for reason in choice.reasons:
