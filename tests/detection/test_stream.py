@@ -176,6 +176,26 @@ def test_streaming_equals_brute_force_batch(tiny, fs: float, up: int,  # type: i
     assert any(abs(e.peak_s - 7.5) < 0.1 and e.channel == "x" for e in events)  # the spike
 
 
+def test_no_events_where_the_filter_read_past_the_ends(tiny) -> None:  # type: ignore[no-untyped-def]
+    """Jolts in the recording's first and last samples, where the resampling filter reads the
+    edges' extension: their scores stay in the trace, but raise no event; the spike at 7.5 s
+    still does."""
+    det, layout, prep, raw = tiny
+    x = raw.copy()
+    x[:3] += 40.0
+    x[-3:] -= 40.0
+    trace: list[np.ndarray] = []
+    stream = StreamingDetector(det, layout, prep, threshold=float(det.threshold_),
+                               on_samples=lambda t, p, c, pos: trace.append(p))
+    events = stream.push(x) + stream.close()
+    first, stop = stream.resampler.clean(len(x))
+    assert (first, stop) == (10, 2990)  # 200 -> 100 Hz: 0.1 s at each end
+    scores = np.concatenate(trace)
+    assert scores[:first].max() > det.threshold_ and scores[stop:].max() > det.threshold_
+    assert all(first / 100 <= e.start_s and e.end_s <= (stop - 1) / 100 for e in events)
+    assert any(abs(e.peak_s - 7.5) < 0.1 for e in events)
+
+
 def test_stream_errors(tiny) -> None:  # type: ignore[no-untyped-def]
     det, layout, prep, raw = tiny
     with pytest.raises(RailwatchError, match="names 3 channels but the model was trained on 2"):

@@ -15,9 +15,9 @@ Resampling (to ``Preparation.rate``; ``None`` keeps the file's rate) is by a rat
 low-pass FIR filter (Kaiser window, cut-off at 80 % of the new Nyquist frequency, about 80 dB
 stop-band), applied in a streaming form: the output is the same whatever the block
 sizes the samples arrive in, and output sample k is the filtered signal at input time
-``k · down / up`` (the filter's delay is compensated; the edges are extended by mirroring).
-Per-channel normalisation is the detector's own, fitted on the windows of the training
-recordings and saved with the model.
+``k · down / up`` (the filter's delay is compensated; the first and last samples are extended by
+repetition). Per-channel normalisation is the detector's own, fitted on the windows of the
+training recordings and saved with the model.
 """
 
 from __future__ import annotations
@@ -191,15 +191,10 @@ class Resampler:
     ``push(block)`` returns the output samples that are complete; ``flush()`` the rest. Output k
     is the filtered signal at input time ``k · down / up``:
     ``y[k] = Σ_n h[k·down + D − n·up] x[n]`` with ``h`` the filter at the upsampled rate and ``D``
-    its delay. Equal to one-shot filtering of the whole signal whatever the block sizes, its
-    edges extended by mirroring (``numpy.pad``'s ``reflect``: ``x[−i] = x[i]``). Mirroring keeps
-    the edge's outputs as noisy as the others; repeating the first sample, as before 2026-12-07,
-    gave the first output 2.8 times the noise of the rest from 2 kHz to 100 Hz (a false event
-    at the start of every recording), a mirror 1.4 times
-    (docs/notes/2026-12-07-where-the-time-goes.md). The first outputs wait for the samples the
-    mirror reads (``delay / up`` of them: 0.1 s from 2 kHz to 100 Hz). Polyphase: outputs of
-    equal ``k mod up`` share one set of taps (every ``up``-th tap of ``h``), so each such group
-    is one strided convolution (``scipy.signal.upfirdn``).
+    its delay. Equal to one-shot filtering of the whole signal (edges extended by repetition)
+    whatever the block sizes. Polyphase: outputs of equal ``k mod up`` share one set of taps
+    (every ``up``-th tap of ``h``), so each such group is one strided convolution
+    (``scipy.signal.upfirdn``).
     """
 
     def __init__(self, up: int, down: int, n_channels: int) -> None:
@@ -218,6 +213,18 @@ class Resampler:
         """Outputs of ``n_in`` input samples: those at input times 0 .. n_in − 1."""
         return (n_in - 1) * self.up // self.down + 1 if n_in else 0
 
+    def clean(self, n_in: int) -> tuple[int, int]:
+        """The outputs ``first .. stop − 1`` of ``n_in`` input samples whose filter read only
+        the recording's own samples: the others read the edges' extension (ten outputs at
+        each end from 2 kHz to 100 Hz, 0.1 s; none without resampling)."""
+        if self.identity:
+            return 0, n_in
+        # Output k reads input n through tap k·down + D − n·up in 0 .. 2D: none before 0 when
+        # k·down + D + up > 2D, none at n_in or after when k·down + D < n_in·up.
+        first = -(-(self.delay - self.up + 1) // self.down)
+        stop = (n_in * self.up - self.delay - 1) // self.down + 1
+        return first, max(stop, first)
+
     def push(self, block: NDArray[Any]) -> NDArray[np.float32]:
         if self.flushed:
             raise RailwatchError("this resampler was flushed: start a new one")
@@ -226,36 +233,25 @@ class Resampler:
             raise RailwatchError(f"expected blocks of shape (n, {self.n_channels}), got {x.shape}")
         if self.identity:
             return x.astype(np.float32)
+        if not self.started and len(x):
+            pad = self.delay // self.up  # input samples before 0 that output 0 reads
+            self.buffer, self.buffer_start = np.repeat(x[:1], pad, axis=0), -pad
+            self.started = True
         self.buffer = np.concatenate([self.buffer, x])
-        if not self.started:
-            if len(self.buffer) <= self.delay // self.up:  # the mirror reads these
-                return np.zeros((0, self.n_channels), np.float32)
-            self._start()
         return self._emit()
 
-    def _start(self) -> None:
-        """Extend the start by mirroring: the input samples before 0 that output 0 reads."""
-        pad = self.delay // self.up
-        self.buffer = np.pad(self.buffer, ((pad, 0), (0, 0)), mode="reflect")
-        self.buffer_start = -pad
-        self.started = True
-
     def flush(self) -> NDArray[np.float32]:
-        """The remaining outputs, the end extended by mirroring (once: later calls give
+        """The remaining outputs, the last sample extended forwards (once: later calls give
         nothing)."""
-        if self.identity or self.flushed or not (self.started or len(self.buffer)):
+        if self.identity or not self.started or self.flushed:
             self.flushed = True
             return np.zeros((0, self.n_channels), np.float32)
         self.flushed = True
-        if not self.started:  # shorter than the start's mirror: mirror what there is
-            self._start()
         n_in = self.buffer_start + len(self.buffer)  # input samples seen
         n_out = self.n_outputs(n_in)
         need = self._newest(n_out - 1) + 1 - n_in  # samples missing for the last output
         if need > 0:
-            held = self.buffer[max(-self.buffer_start, 0):]  # the input samples held
-            self.buffer = np.concatenate(
-                [self.buffer, np.pad(held, ((0, need), (0, 0)), mode="reflect")[len(held):]])
+            self.buffer = np.concatenate([self.buffer, np.repeat(self.buffer[-1:], need, 0)])
         return self._emit(limit=n_out)
 
     def _newest(self, k: int) -> int:
