@@ -194,9 +194,11 @@ def main() -> None:
     ]
     for stage in STAGES:
         lines.append(f"| {stage} | " + " | ".join(bounds(stage, v) for v in names) + " |")
+    from railwatch.detection.pipeline import EVENTS_PER_MINUTE
+
     default = list(VARIANTS)[-1]
-    lines += ["", f"At its own event threshold (0.6 windows per minute of the training runs' "
-              f"null, `railwatch train`'s default at the benchmark's scale), `{default}`:", "",
+    lines += ["", f"At its own event threshold ({EVENTS_PER_MINUTE:g} windows per minute of the "
+              f"training runs' null, `railwatch train`'s default), `{default}`:", "",
               "| stage | defects found (per trio) | false events / min | "
               "false / min, quiet / loud track (per trio) |",
               "|---|---|---|---|"]
