@@ -54,7 +54,8 @@ def test_a_model_saved_before_keeps_its_threshold(model, tmp_path: Path) -> None
     folder, det, _, threshold = model
     old = tmp_path / "old"
     layout = load_layout(folder / "train.layout.toml")
-    info = json.loads(pipeline.recording_info(layout, Preparation())["recording.json"])
+    rule = pipeline.event_threshold(Preparation(), pipeline.EVENTS_PER_MINUTE)
+    info = json.loads(pipeline.recording_info(layout, Preparation(), rule)["recording.json"])
     det.save(old, extra_files={"recording.json": json.dumps({**info, "threshold": 7.5})})
     assert pipeline.load_recording_model(old).threshold == 7.5 != threshold
 

@@ -142,14 +142,12 @@ def median_speed(recordings: Sequence[Recording], every: int = 50) -> float | No
     return speed if speed > 0 else None
 
 
-def recording_info(layout: Layout, prep: Preparation,
-                   rule: ThresholdRule | None = None,
+def recording_info(layout: Layout, prep: Preparation, rule: ThresholdRule,
                    response: rails.AxleResponse | None = None) -> dict[str, str]:
     """The extra file a recordings model carries (``Detector.save(extra_files=...)``): the
-    layout, the preparation, the rule that set the detector's threshold (the value itself is
-    stored once, with the detector's statistics) and, when identified, the axle boxes'
+    layout, the preparation, the ``rule`` that set the detector's threshold (the value itself
+    is stored once, with the detector's statistics) and, when identified, the axle boxes'
     response (the weld test's, :mod:`railwatch.recordings.rails`)."""
-    rule = rule or event_threshold(prep, EVENTS_PER_MINUTE)
     info: dict[str, Any] = {"layout": layout.to_dict(), "preparation": prep.to_dict(),
                             "threshold_rule": rule.describe()}
     if response is not None:
