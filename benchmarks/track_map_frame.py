@@ -52,19 +52,22 @@ VARIANTS = ("median frame, no check", "+ check of the moves", "frame from the st
 @contextmanager
 def variant(index: int, passes: list) -> Iterator[None]:  # type: ignore[type-arg]
     """The map's rules of ``VARIANTS[index]`` for ``passes`` (their starts hidden for the
-    median frame)."""
-    from railwatch import trackmap as tm
+    median frame). The switch is made in :mod:`railwatch.trackmap.fusion`, whose functions the
+    map calls through the module (a name bound by ``from ... import`` elsewhere would not see
+    it: until 2026-12-07 this switched ``trackmap.verify_moves``, which the map no longer
+    called after the track map's re-layout of 2026-12-03)."""
+    from railwatch.trackmap import fusion
 
-    saved_verify, saved_starts = tm.verify_moves, [p.start for p in passes]
-    if index in (0, 2):
-        tm.verify_moves = lambda passes, transforms, scores: transforms  # type: ignore[assignment]
+    saved_keeps, saved_starts = fusion.keeps_move, [p.start for p in passes]
+    if index in (0, 2):  # every move the events made is kept: no check
+        fusion.keeps_move = lambda xs, scores, recorded, **_: [True] * len(xs)  # type: ignore[assignment]
     if index in (0, 1):
         for p in passes:
             p.start = None
     try:
         yield
     finally:
-        tm.verify_moves = saved_verify  # type: ignore[assignment]
+        fusion.keeps_move = saved_keeps  # type: ignore[assignment]
         for p, s in zip(passes, saved_starts, strict=True):
             p.start = s
 

@@ -80,23 +80,24 @@ def fisher(calibrated: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArra
 
 @contextmanager
 def rules(step: int) -> Iterator[None]:
-    """The map's rules up to ``step`` (an index into STEPS), the later ones switched back."""
-    from railwatch import trackmap as tm
+    """The map's rules up to ``step`` (an index into STEPS), the later ones switched back, in
+    :mod:`railwatch.trackmap.fusion`, whose functions the map calls through the module (until
+    2026-12-07 the refinement was switched as ``trackmap.refine_by_profiles``, a name the map
+    no longer called after the re-layout of 2026-12-03: the last two columns were equal)."""
     from railwatch.trackmap import fusion
 
-    saved = fusion.calibrate, fusion.combine, tm.refine_by_profiles
+    saved = fusion.calibrate, fusion.combine, fusion.profile_shifts
     if step < 1:
         fusion.calibrate = neighbourhood_rank  # type: ignore[assignment]
     if step < 2:
         fusion.combine = fisher
-    if step < 3:
-        refine = saved[2]  # no rounds of refinement: the events' alignment in its frame
-        tm.refine_by_profiles = (  # type: ignore[assignment]
-            lambda passes, transforms, scores, rounds=2: refine(passes, transforms, scores, 0))
+    if step < 3:  # no shift from the profiles: the events' alignment in its frame
+        fusion.profile_shifts = (  # type: ignore[assignment]
+            lambda xs, scores, *_, **__: [(0.0, 0.0)] * len(xs))
     try:
         yield
     finally:
-        fusion.calibrate, fusion.combine, tm.refine_by_profiles = saved
+        fusion.calibrate, fusion.combine, fusion.profile_shifts = saved
 
 
 def main() -> None:

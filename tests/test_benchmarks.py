@@ -127,3 +127,36 @@ def test_the_physics_sweep_forms_events_as_detect_does(monkeypatch) -> None:  # 
     assert len(got) == len(events) > 10
     for e, g in zip(events, got, strict=True):
         assert abs(e.start_s - g["start_s"]) < 1e-9 and abs(e.end_s - g["end_s"]) < 1e-9
+
+
+def test_the_map_s_ablations_reach_the_code_the_map_runs(monkeypatch, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """Each rule that `track_map_frame` and `track_map_fusion` switch off is one the fused map
+    calls: the function switched is called by `fused_map` outside the switch and never inside it
+    (a switch of a name the map does not call leaves two columns of a page equal, as the
+    track map's re-layout did to both pages until 2026-12-07)."""
+    monkeypatch.syspath_prepend(str(REPO))
+    import numpy as np
+    from benchmarks import track_map_frame, track_map_fusion
+
+    from railwatch import trackmap as tm
+    from railwatch.trackmap import fusion
+    from support import profiles, scan_folder
+
+    defects = np.array([600.0, 2100.0, 3700.0])
+    xs, scores = profiles(5, defects, bump=4.0, seed=5)
+    scan_folder(tmp_path, xs, scores, defects)
+    passes = tm.read_scan(tmp_path)
+    switches = {"keeps_move": lambda: track_map_frame.variant(0, passes),
+                "profile_shifts": lambda: track_map_fusion.rules(2),
+                "combine": lambda: track_map_fusion.rules(1),
+                "calibrate": lambda: track_map_fusion.rules(0)}
+    for name, switch in switches.items():
+        calls: list[int] = []
+        original = getattr(fusion, name)
+        monkeypatch.setattr(fusion, name,
+                            lambda *a, _f=original, _c=calls, **k: _c.append(1) or _f(*a, **k))
+        with switch():
+            tm.fused_map(passes)
+        assert not calls, f"{name} is still called inside its switch"
+        tm.fused_map(passes)
+        assert calls, f"the map does not call fusion.{name}: the switch changes nothing"
