@@ -51,6 +51,10 @@ KINDS = {"stage 5": ["--stage", "5", "--loud-stretches"],
 RUNS = (("stage 5", "context-glr"), ("stage 5", "aft-attention"), ("stage 8", "context-glr"),
         ("stage 5", "matched-filter"), ("stage 8", "matched-filter"),
         ("stage 5", "matched-filter-wheel"), ("stage 8", "matched-filter-wheel"))
+#: What the page says of `scan`'s throughput when `--no-throughput` skipped it.
+NOT_MEASURED = ("`scan` throughput: not measured in this run (`--no-throughput`); the last "
+                "figures, with their date and machine: docs/measurements.md, \"Track map from "
+                "repeated passes\".")
 #: Labels of runs that train a registry detector with `train` flags: the matched filter with
 #: the wheel comb (`train --wheel-comb`).
 TRAIN_FLAGS = {"matched-filter-wheel": ("matched-filter", ("--wheel-comb",))}
@@ -330,6 +334,8 @@ def main() -> None:
                   "at 2000 Hz), recording-hours per hour:", "", "| executor | rate |",
                   "|---|---|"]
         lines += [f"| {k} | {v:.0f} |" for k, v in speed.items()]
+    else:
+        lines += ["", NOT_MEASURED]
     figure = args.out.with_suffix(".png").name
     lines += ["", f"![recall and false locations against passes]({figure})"]
     save_figure(_figure(results), args.out.with_suffix(".png"))
